@@ -1,0 +1,1 @@
+"""Synthetic data generation for chpf: render pools, training samples, BOP sequences."""

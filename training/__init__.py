@@ -1,0 +1,1 @@
+"""Lightning training of the autoencoder likelihood and the Counter-Hypothetical classifier."""
