@@ -1,0 +1,1 @@
+"""Micro-benchmarks of chpf building blocks; each runs with `python -m` and prints a table."""
