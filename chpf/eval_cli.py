@@ -1,0 +1,232 @@
+"""``chpf-eval``: score a BOP results CSV against a BOP dataset's ground truth (ADD, ADD-S AUC).
+
+Usage::
+
+    chpf-eval --dataset DIR --results FILE.csv [--split test] [--scenes 48,49] [--json OUT.json]
+
+What is scored (YCB-Video convention, errors in metres, AUC = VOCap area up to 0.1 m, x100):
+
+- Objects: every object that has at least one row in the results. An object with no rows at all is
+  not scored (so scoring a single-object tracking run is meaningful).
+- Targets: every ground-truth instance of those objects in every scene of the split (or only in
+  ``--scenes``). A target with no estimate counts as a failure (error = inf).
+- Estimates: per (scene, image, object) the rows are taken in decreasing score; if the object
+  appears k times in the image, the k best rows are matched greedily (best score first) to the
+  still-unmatched instance with the lowest error, separately for ADD and ADD-S (as the BOP toolkit
+  matches per error type). With one instance this is simply the best-scoring row. Extra rows and
+  rows for images without that object are ignored (counted in ``ignored_rows``).
+- ADD is the plain metric for every object, symmetric or not; ADD-S is the symmetric metric.
+- ``all`` pools the errors of all targets of all scored objects (instance-weighted).
+
+Report (``evaluate``)::
+
+    {"dataset", "split", "scenes": [...], "ignored_rows",
+     "objects": {"<obj_id>": {"n", "n_missing", "add_auc", "adds_auc"}}, "all": {same keys}}
+
+AUCs are None (JSON null) for an object with no targets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from chpf.bop import BopDataset
+from chpf.cli import atomic_write_text, run_main
+from chpf.errors import DatasetError
+from chpf.results import ResultRow, read_results_csv
+
+__all__ = ["cli", "evaluate", "format_table", "main", "object_errors"]
+
+CHUNK = 256  # pose pairs per metrics call (bounds memory: CHUNK x points x 3)
+
+
+def _batched(fn, points: np.ndarray, Re, te, Rg, tg) -> np.ndarray:
+    out = [
+        np.asarray(
+            fn(points, Re[i : i + CHUNK], te[i : i + CHUNK], Rg[i : i + CHUNK], tg[i : i + CHUNK])
+        )
+        for i in range(0, len(Re), CHUNK)
+    ]
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def _cat(parts: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def _greedy(err: np.ndarray) -> np.ndarray:
+    """err (n_est, n_gt), estimates in decreasing score -> best error per gt (inf if unmatched)."""
+    best = np.full(err.shape[1], np.inf)
+    free = np.ones(err.shape[1], dtype=bool)
+    for row in err:
+        cand = np.where(free, row, np.inf)
+        j = int(np.argmin(cand))
+        if free[j]:
+            best[j] = row[j]
+            free[j] = False
+    return best
+
+
+def object_errors(
+    points: np.ndarray,
+    targets: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray]]],
+    estimates: dict[tuple[int, int], list[ResultRow]],
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """ADD and ADD-S errors (m) of one object's targets, plus the number of ignored rows.
+
+    ``targets``: (scene, im) -> [(R_gt, t_gt), ...] instances; ``estimates``: (scene, im) -> rows.
+    Returns (add (n,), adds (n,), ignored) in target order, inf where no estimate matched.
+    """
+    from chpf.metrics import add_batch, adds_batch
+
+    pair_e, pair_g, blocks = [], [], []
+    for key, gts in targets.items():
+        rows = sorted(estimates.get(key, []), key=lambda r: -r.score)[: len(gts)]
+        blocks.append((len(pair_e), len(rows), len(gts)))
+        for r in rows:
+            for g in gts:
+                pair_e.append(r)
+                pair_g.append(g)
+    ignored = sum(len(v) for k, v in estimates.items() if k not in targets)
+    ignored += sum(max(0, len(estimates.get(k, [])) - len(g)) for k, g in targets.items())
+    if pair_e:
+        Re = np.stack([r.R for r in pair_e])
+        te = np.stack([r.t for r in pair_e])
+        Rg = np.stack([g[0] for g in pair_g])
+        tg = np.stack([g[1] for g in pair_g])
+        e_add = _batched(add_batch, points, Re, te, Rg, tg)
+        e_adds = _batched(adds_batch, points, Re, te, Rg, tg)
+    else:
+        e_add = e_adds = np.zeros(0)
+    add, adds = [], []
+    for start, n_est, n_gt in blocks:
+        sl = slice(start, start + n_est * n_gt)
+        add.append(_greedy(e_add[sl].reshape(n_est, n_gt)))
+        adds.append(_greedy(e_adds[sl].reshape(n_est, n_gt)))
+    return _cat(add), _cat(adds), ignored
+
+
+def _summary(add: np.ndarray, adds: np.ndarray) -> dict[str, Any]:
+    from chpf.metrics import auc
+
+    n = len(add)
+    return {
+        "n": n,
+        "n_missing": int(np.sum(~np.isfinite(add))),
+        "add_auc": float(auc(add)) if n else None,
+        "adds_auc": float(auc(adds)) if n else None,
+    }
+
+
+def evaluate(
+    dataset_root: str | Path,
+    results_rows: Iterable[ResultRow],
+    split: str = "test",
+    scenes: Iterable[int] | None = None,
+) -> dict[str, Any]:
+    """Score ``results_rows`` against the ground truth of ``split`` (see the module docstring)."""
+    ds = BopDataset(dataset_root)
+    rows = list(results_rows)
+    objs = sorted({r.obj_id for r in rows})
+    scene_ids = ds.scene_ids(split)
+    if scenes is not None:
+        wanted = {int(s) for s in scenes}
+        missing = sorted(wanted - set(scene_ids))
+        if missing:
+            raise DatasetError(f"{ds.split_path(split)}: no scene(s) {missing}")
+        scene_ids = [s for s in scene_ids if s in wanted]
+
+    targets: dict[int, dict[tuple[int, int], list]] = {o: defaultdict(list) for o in objs}
+    for sid in scene_ids:
+        scene = ds.scene(split, sid)
+        for im_id, poses in scene.gt.items():
+            for p in poses:
+                if p.obj_id in targets:
+                    targets[p.obj_id][(sid, im_id)].append((p.R, p.t))
+    estimates: dict[int, dict[tuple[int, int], list[ResultRow]]] = {
+        o: defaultdict(list) for o in objs
+    }
+    for r in rows:
+        estimates[r.obj_id][(r.scene_id, r.im_id)].append(r)
+
+    report: dict[str, Any] = {
+        "dataset": str(dataset_root),
+        "split": split,
+        "scenes": scene_ids,
+        "objects": {},
+    }
+    all_add, all_adds, ignored = [], [], 0
+    for obj_id in objs:
+        if targets[obj_id]:
+            points = np.asarray(ds.load_object(obj_id).points, dtype=np.float64)
+            add, adds, ign = object_errors(points, targets[obj_id], estimates[obj_id])
+        else:
+            add = adds = np.zeros(0)
+            ign = sum(len(v) for v in estimates[obj_id].values())
+        ignored += ign
+        all_add.append(add)
+        all_adds.append(adds)
+        report["objects"][str(obj_id)] = _summary(add, adds)
+    report["all"] = _summary(_cat(all_add), _cat(all_adds))
+    report["ignored_rows"] = ignored
+    return report
+
+
+def format_table(report: dict[str, Any]) -> str:
+    """Text table: obj_id, n, missing, ADD AUC, ADD-S AUC; then the ``all`` row."""
+
+    def fmt(v: float | None) -> str:
+        return "-" if v is None else f"{v:.2f}"
+
+    lines = [f"{'obj_id':>6} {'n':>7} {'missing':>7} {'ADD AUC':>8} {'ADD-S AUC':>9}"]
+    entries = [(k, v) for k, v in report["objects"].items()] + [("all", report["all"])]
+    for name, e in entries:
+        if name == "all":
+            lines.append("-" * len(lines[0]))
+        lines.append(
+            f"{name:>6} {e['n']:>7d} {e['n_missing']:>7d} "
+            f"{fmt(e['add_auc']):>8} {fmt(e['adds_auc']):>9}"
+        )
+    return "\n".join(lines)
+
+
+def _scene_list(text: str) -> list[int]:
+    try:
+        return [int(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated scene ids, got {text!r}"
+        ) from None
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``chpf-eval``; returns the exit code."""
+    parser = argparse.ArgumentParser(
+        prog="chpf-eval",
+        description="Score a BOP results CSV (ADD / ADD-S AUC, YCB-Video convention).",
+    )
+    parser.add_argument("--dataset", required=True, type=Path, help="BOP dataset root")
+    parser.add_argument("--results", required=True, type=Path, help="BOP results CSV")
+    parser.add_argument("--split", default="test", help="split folder (default: test)")
+    parser.add_argument("--scenes", type=_scene_list, default=None, help="e.g. 48,49 (default all)")
+    parser.add_argument("--json", type=Path, default=None, help="also write the report as JSON")
+    args = parser.parse_args(argv)
+
+    rows = read_results_csv(args.results)
+    report = evaluate(args.dataset, rows, split=args.split, scenes=args.scenes)
+    print(format_table(report))
+    if report["ignored_rows"]:
+        print(f"({report['ignored_rows']} result rows matched no ground-truth instance)")
+    if args.json is not None:
+        atomic_write_text(args.json, json.dumps(report, indent=2) + "\n")
+    return 0
+
+
+cli = run_main(main)

@@ -1,0 +1,185 @@
+"""BOP results CSV: ``scene_id,im_id,obj_id,score,R,t,time``.
+
+``R`` is 9 numbers separated by spaces (row-major), ``t`` 3 numbers in millimetres, ``time`` in
+seconds (-1 = unknown). In memory ``t`` is in metres. The header line is optional on reading (as in
+the BOP toolkit) and always written. Blank lines are skipped. ``ResultsFormatError`` names the file
+and the line for a wrong column count, a non-number, a non-finite value, or an ``R`` that is not a
+rotation (``|R R^T - I| > 1e-3`` or ``det R < 0``).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from chpf.cli import atomic_write_text
+from chpf.errors import ResultsFormatError
+
+__all__ = ["HEADER", "ResultRow", "ResultsAppender", "read_results_csv", "write_results_csv"]
+
+HEADER = "scene_id,im_id,obj_id,score,R,t,time"
+ORTHO_TOL = 1e-3
+MM = 1000.0
+
+
+@dataclass(eq=False)
+class ResultRow:
+    """One estimate: object-to-camera ``R`` (3,3), ``t`` (3,) metres, ``time`` s (-1 = unknown)."""
+
+    scene_id: int
+    im_id: int
+    obj_id: int
+    score: float
+    R: np.ndarray
+    t: np.ndarray
+    time: float = -1.0
+
+    def __post_init__(self) -> None:
+        self.R = np.asarray(self.R, dtype=np.float64).reshape(3, 3)
+        self.t = np.asarray(self.t, dtype=np.float64).reshape(3)
+
+    @property
+    def key(self) -> tuple[int, int, int]:
+        """(scene_id, im_id, obj_id)."""
+        return (int(self.scene_id), int(self.im_id), int(self.obj_id))
+
+
+def _fmt(x: float) -> str:
+    """Shortest round-tripping text of a float (integers without '.0')."""
+    x = float(x)
+    return str(int(x)) if x.is_integer() and abs(x) < 1e15 else repr(x)
+
+
+def format_row(row: ResultRow) -> str:
+    """One CSV line (no newline)."""
+    R = " ".join(_fmt(v) for v in np.asarray(row.R, dtype=np.float64).ravel())
+    t = " ".join(_fmt(v * MM) for v in np.asarray(row.t, dtype=np.float64).ravel())
+    return (
+        f"{int(row.scene_id)},{int(row.im_id)},{int(row.obj_id)},{_fmt(row.score)},"
+        f"{R},{t},{_fmt(row.time)}"
+    )
+
+
+def parse_row(line: str, path: str | Path, lineno: int) -> ResultRow:
+    """Parse one CSV line; ResultsFormatError naming ``path:lineno`` on any problem."""
+    where = f"{path}:{lineno}"
+    cols = line.strip().split(",")
+    if len(cols) != 7:
+        raise ResultsFormatError(f"{where}: expected 7 columns ({HEADER}), got {len(cols)}")
+    names = ("scene_id", "im_id", "obj_id")
+    ids = []
+    for name, col in zip(names, cols[:3], strict=True):
+        try:
+            ids.append(int(col.strip()))
+        except ValueError:
+            raise ResultsFormatError(f"{where}: {name} {col.strip()!r} is not an integer") from None
+
+    def floats(col: str, name: str, n: int) -> np.ndarray:
+        parts = col.split()
+        if len(parts) != n:
+            raise ResultsFormatError(f"{where}: {name} must have {n} numbers, got {len(parts)}")
+        try:
+            arr = np.array([float(p) for p in parts], dtype=np.float64)
+        except ValueError:
+            raise ResultsFormatError(f"{where}: {name} {col.strip()!r} is not numeric") from None
+        if not np.all(np.isfinite(arr)):
+            raise ResultsFormatError(f"{where}: {name} has non-finite values")
+        return arr
+
+    score = floats(cols[3], "score", 1)[0]
+    R = floats(cols[4], "R", 9).reshape(3, 3)
+    t = floats(cols[5], "t", 3) / MM
+    time = floats(cols[6], "time", 1)[0]
+    dev = float(np.abs(R @ R.T - np.eye(3)).max())
+    if dev > ORTHO_TOL or np.linalg.det(R) < 0:
+        raise ResultsFormatError(
+            f"{where}: R is not a rotation (|R R^T - I| = {dev:.2g}, det = {np.linalg.det(R):.3g})"
+        )
+    return ResultRow(ids[0], ids[1], ids[2], float(score), R, t, float(time))
+
+
+def _iter_lines(path: Path, text: str):
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if not s or (lineno == 1 and s.replace(" ", "") == HEADER):
+            continue
+        yield lineno, s
+
+
+def read_results_csv(path: str | Path) -> list[ResultRow]:
+    """Read a BOP results CSV (t mm -> m)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ResultsFormatError(f"{path}: results file not found")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise ResultsFormatError(f"{path}: cannot read ({err})") from None
+    return [parse_row(line, path, lineno) for lineno, line in _iter_lines(path, text)]
+
+
+def write_results_csv(path: str | Path, rows: list[ResultRow]) -> None:
+    """Write a BOP results CSV with header, atomically (t m -> mm)."""
+    lines = [HEADER, *(format_row(r) for r in rows)]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+class ResultsAppender:
+    """Append rows to a results CSV one at a time, flushing each (resumable long runs).
+
+    A new or empty file gets the header. An existing file is validated; a partial last line (a run
+    killed mid-write) is cut off so that the file stays valid. ``done_keys()`` lists the
+    (scene_id, im_id, obj_id) already present, to skip them when resuming.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._keys: set[tuple[int, int, int]] = set()
+        if self.path.is_file() and self.path.stat().st_size > 0:
+            data = self.path.read_bytes()
+            if not data.endswith(b"\n"):
+                cut = data.rfind(b"\n") + 1
+                with open(self.path, "r+b") as f:
+                    f.truncate(cut)
+                data = data[:cut]
+            text = data.decode("utf-8", errors="replace")
+            for lineno, line in _iter_lines(self.path, text):
+                self._keys.add(parse_row(line, self.path, lineno).key)
+            write_header = not data.strip()
+        else:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            write_header = True
+        self._f = open(self.path, "a", encoding="utf-8")
+        if write_header:
+            self._f.write(HEADER + "\n")
+            self._f.flush()
+
+    def append(self, row: ResultRow) -> None:
+        """Write one row and flush it to the OS."""
+        self._f.write(format_row(row) + "\n")
+        self._f.flush()
+        self._keys.add(row.key)
+
+    def done_keys(self) -> set[tuple[int, int, int]]:
+        """Keys (scene_id, im_id, obj_id) in the file, including rows appended so far."""
+        return set(self._keys)
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.flush()
+            os.fsync(self._f.fileno())
+            self._f.close()
+
+    def __enter__(self) -> ResultsAppender:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        f = getattr(self, "_f", None)
+        if f is not None and not f.closed:
+            f.close()

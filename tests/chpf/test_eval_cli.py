@@ -1,0 +1,170 @@
+"""End-to-end tests of chpf-eval (chpf.eval_cli) on a tiny BOP dataset with trimesh models."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import trimesh
+
+from chpf import bop
+from chpf.bop import BopDataset, CameraInfo, GtPose, ModelInfo, ResultRow
+from chpf.eval_cli import cli, evaluate, format_table
+from chpf.metrics import adds_batch, auc
+
+K = np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
+OFFSET = np.array([0.05, 0.0, 0.0])
+
+
+def _pose(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    R, _ = cv2.Rodrigues(rng.normal(size=3))
+    return R, np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), rng.uniform(0.6, 1.2)])
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Objects 1 (box) and 2 (cylinder, continuous symmetry); scene 1: 10 images with both,
+    image 10 has a second instance of object 1; scene 2: 5 images with object 1 only."""
+    root = tmp_path_factory.mktemp("evalds")
+    box = trimesh.creation.box(extents=[100.0, 70.0, 40.0])  # millimetres, like BOP models
+    cyl = trimesh.creation.cylinder(radius=30.0, height=90.0, sections=24)
+    (root / "models").mkdir()
+    box.export(root / "models" / "obj_000001.ply")
+    cyl.export(root / "models" / "obj_000002.ply")
+    bop.write_models_info(
+        root / "models" / "models_info.json",
+        {
+            1: ModelInfo(1, float(np.linalg.norm([0.1, 0.07, 0.04]))),
+            2: ModelInfo(
+                2,
+                float(np.hypot(0.06, 0.09)),
+                symmetries_continuous=[{"axis": np.array([0, 0, 1.0]), "offset": np.zeros(3)}],
+            ),
+        },
+    )
+    rng = np.random.default_rng(7)
+    for scene_id, n_im, objs in ((1, 10, (1, 2)), (2, 5, (1,))):
+        sdir = bop.scene_dir(root, "test", scene_id)
+        cams = {im: CameraInfo(K.copy(), 0.1) for im in range(1, n_im + 1)}
+        gt = {im: [GtPose(o, *_pose(rng)) for o in objs] for im in cams}
+        if scene_id == 1:
+            gt[10].append(GtPose(1, *_pose(rng)))
+        bop.write_scene_camera(sdir / "scene_camera.json", cams)
+        bop.write_scene_gt(sdir / "scene_gt.json", gt)
+    return root
+
+
+def _gt_rows(root: Path, obj_id: int = 1, offset: np.ndarray | None = None) -> list[ResultRow]:
+    ds = BopDataset(root)
+    rows = []
+    for sid in ds.scene_ids("test"):
+        for im, poses in ds.scene("test", sid).gt.items():
+            for p in poses:
+                if p.obj_id == obj_id:
+                    t = p.t if offset is None else p.t + offset
+                    rows.append(ResultRow(sid, im, obj_id, 1.0, p.R, t, 0.02))
+    return rows
+
+
+def test_exact_results_score_100(dataset: Path) -> None:
+    rows = _gt_rows(dataset)
+    rep = evaluate(dataset, rows, "test")
+    assert list(rep["objects"]) == ["1"]  # object 2 has no rows: not scored
+    e = rep["objects"]["1"]
+    assert e["n"] == 16 and e["n_missing"] == 0  # 15 images + a second instance
+    assert e["add_auc"] == pytest.approx(100.0, abs=1e-6)
+    assert e["adds_auc"] == pytest.approx(100.0, abs=1e-6)
+    assert rep["all"]["n"] == 16 and rep["ignored_rows"] == 0
+
+
+def test_offset_gives_computed_auc(dataset: Path) -> None:
+    rows = _gt_rows(dataset, offset=OFFSET)
+    rep = evaluate(dataset, rows, "test")
+    e = rep["objects"]["1"]
+    # a pure 5 cm translation error: ADD is 0.05 m for every instance
+    assert e["add_auc"] == pytest.approx(auc(np.full(16, 0.05)))
+    assert 45.0 < e["add_auc"] < 56.0
+    points = BopDataset(dataset).load_object(1).points
+    gt = _gt_rows(dataset)
+    R = np.stack([r.R for r in gt])
+    t = np.stack([r.t for r in gt])
+    expected_adds = adds_batch(points, R, t + OFFSET, R, t)
+    assert e["adds_auc"] == pytest.approx(auc(expected_adds), abs=1e-9)
+    assert e["adds_auc"] > e["add_auc"]
+
+
+def test_missing_frames_and_best_score(dataset: Path) -> None:
+    rows = [r for r in _gt_rows(dataset) if r.scene_id == 1]  # scene 2 (5 targets) missing
+    bad = ResultRow(1, 1, 1, 0.1, np.eye(3), np.array([0, 0, 3.0]))  # lower score: not used
+    stray = ResultRow(1, 1, 2, 0.5, np.eye(3), np.array([0, 0, 1.0]))  # object 2 now scored
+    nowhere = ResultRow(2, 99, 1, 0.5, np.eye(3), np.array([0, 0, 1.0]))  # no such image
+    rep = evaluate(dataset, [bad, *rows, stray, nowhere], "test")
+    e = rep["objects"]["1"]
+    assert e["n"] == 16 and e["n_missing"] == 5
+    expected = auc(np.array([0.0] * 11 + [np.inf] * 5))
+    assert e["add_auc"] == pytest.approx(expected) and e["adds_auc"] == pytest.approx(expected)
+    assert e["add_auc"] == pytest.approx(100 * 11 / 16, abs=0.5)
+    assert rep["objects"]["2"]["n"] == 10 and rep["objects"]["2"]["n_missing"] == 9
+    assert rep["all"]["n"] == 26 and rep["all"]["n_missing"] == 14
+    assert rep["ignored_rows"] == 2  # `bad` is surplus, `nowhere` has no target
+    only1 = evaluate(dataset, rows, "test", scenes=[1])
+    assert only1["objects"]["1"]["add_auc"] == pytest.approx(100.0, abs=1e-6)
+
+
+def test_two_instances_matched_greedily(dataset: Path) -> None:
+    rows = [r for r in _gt_rows(dataset) if (r.scene_id, r.im_id) == (1, 10)]
+    assert len(rows) == 2
+    rows[0].score, rows[1].score = 0.3, 0.9  # the better-scored row is the second instance's
+    rep = evaluate(dataset, rows, "test", scenes=[1])
+    e = rep["objects"]["1"]
+    assert e["n"] == 11 and e["n_missing"] == 9
+    assert e["add_auc"] == pytest.approx(auc(np.array([0.0] * 2 + [np.inf] * 9)))
+
+
+def test_format_table(dataset: Path) -> None:
+    rep = evaluate(dataset, _gt_rows(dataset), "test")
+    rep["objects"]["7"] = {"n": 0, "n_missing": 0, "add_auc": None, "adds_auc": None}
+    lines = format_table(rep).splitlines()
+    assert "ADD AUC" in lines[0] and "ADD-S AUC" in lines[0]
+    assert lines[1].split() == ["1", "16", "0", "100.00", "100.00"]
+    assert lines[2].split() == ["7", "0", "0", "-", "-"]
+    assert lines[-1].split()[0] == "all"
+
+
+def _run_cli(monkeypatch: pytest.MonkeyPatch, *args: str) -> int:
+    monkeypatch.setattr(sys, "argv", ["chpf-eval", *args])
+    with pytest.raises(SystemExit) as ei:
+        cli()
+    return ei.value.code
+
+
+def test_cli_end_to_end(dataset: Path, tmp_path: Path, monkeypatch, capsys) -> None:
+    res = tmp_path / "res.csv"
+    bop.write_results_csv(res, _gt_rows(dataset, offset=OFFSET))
+    out = tmp_path / "report.json"
+    code = _run_cli(
+        monkeypatch, "--dataset", str(dataset), "--results", str(res), "--json", str(out)
+    )
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "all" in text and "ADD-S AUC" in text
+    rep = json.loads(out.read_text())
+    assert set(rep["objects"]) == {"1"} and rep["all"]["n"] == 16
+    assert rep["objects"]["1"]["add_auc"] == pytest.approx(auc(np.full(16, 0.05)))
+
+
+def test_cli_malformed_csv_exits_2(dataset: Path, tmp_path: Path, monkeypatch, capsys) -> None:
+    res = tmp_path / "bad.csv"
+    res.write_text("scene_id,im_id,obj_id,score,R,t,time\n1,1,1,0.9,1 0 0 0 1 0 0 0 1,0 0 800\n")
+    code = _run_cli(monkeypatch, "--dataset", str(dataset), "--results", str(res))
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "bad.csv:2" in err and "\n" not in err
+    good = tmp_path / "good.csv"
+    bop.write_results_csv(good, _gt_rows(dataset))
+    code = _run_cli(monkeypatch, "--dataset", str(tmp_path / "nope"), "--results", str(good))
+    assert code == 2 and "nope" in capsys.readouterr().err
