@@ -1,0 +1,126 @@
+"""chpf-train end to end on fabricated shards: checkpoints, resume, AE init, bad input."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from chpf.errors import ConfigError
+from training.checkpoints import (
+    checkpoint_info,
+    load_autoencoder,
+    load_classifier,
+    state_sha256,
+)
+from training.cli import main
+from training.codebook import codebook_arrays, save_codebook
+from training.evaluate import main as evaluate_main
+
+ROOT = Path(__file__).resolve().parents[2]
+AE_CFG = str(ROOT / "configs" / "train_ae_tiny.yaml")
+CH_CFG = str(ROOT / "configs" / "train_ch_tiny.yaml")
+
+
+def _train_ae(ae_dir: Path, out: Path, *extra: str) -> Path:
+    args = ["ae", "--config", AE_CFG, "--data.data_dir", str(ae_dir)]
+    assert main([*args, "--trainer.default_root_dir", str(out), *extra]) == 0
+    return out / "checkpoints" / "last.ckpt"
+
+
+@pytest.fixture
+def ae_ckpt(ae_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    monkeypatch.chdir(tmp_path)
+    return _train_ae(ae_dir, tmp_path / "runs_ae")
+
+
+def test_ae_trains_writes_checkpoints_and_resumes(ae_ckpt: Path, ae_dir: Path) -> None:
+    out = ae_ckpt.parent.parent
+    assert ae_ckpt.is_file() and list(out.glob("checkpoints/best-*.ckpt"))
+    info = checkpoint_info(ae_ckpt, expect="ae")
+    assert info["crop"]["size"] == 16 and info["model_config"]["embedding_dim"] == 16
+    model, _ = load_autoencoder(ae_ckpt)
+    assert model(torch.rand(2, 3, 16, 16))[1].shape == (2, 16)
+    rows = list(csv.DictReader(open(next(out.glob("logs/version_*/metrics.csv")))))
+    assert any(r.get("val/retrieval_median_deg") for r in rows)
+    assert list(out.glob("tb/version_*/events.*"))
+    assert torch.load(ae_ckpt, weights_only=False)["global_step"] == 4
+    # resume from last.ckpt up to 6 steps
+    _train_ae(ae_dir, out, "--ckpt_path", str(ae_ckpt), "--trainer.max_steps", "6")
+    assert torch.load(ae_ckpt, weights_only=False)["global_step"] == 6
+
+
+def test_ch_from_frozen_ae_encoder(
+    ae_ckpt: Path, ae_dir: Path, pairs_dir: Path, tmp_path: Path, pattern_images
+) -> None:
+    out = tmp_path / "runs_ch"
+    args = ["ch", "--config", CH_CFG, "--data.data_dir", str(pairs_dir)]
+    args += ["--trainer.default_root_dir", str(out), "--model.init_from_ae", str(ae_ckpt)]
+    assert main([*args, "--model.freeze_encoder", "true"]) == 0
+    ch_ckpt = out / "checkpoints" / "last.ckpt"
+    ch, info = load_classifier(ch_ckpt)
+    assert info["shares_ae_encoder"] and ch.shares_ae_encoder and info["ae_encoder_sha256"]
+    ae, _ = load_autoencoder(ae_ckpt)
+    assert info["ae_encoder_sha256"] == state_sha256(ae.encoder)
+    assert state_sha256(ch.obs_encoder) == state_sha256(ae.encoder)
+    ch_state = ch.obs_encoder.state_dict()
+    for k, a in ae.encoder.state_dict().items():
+        assert torch.equal(a, ch_state[k]), k  # frozen: the observed branch IS the AE encoder
+    # held-out evaluation prints and writes the figures
+    imgs, R = pattern_images(50, 16, seed=9)
+    save_codebook(tmp_path / "cb.npz", codebook_arrays(R, imgs))
+    ev = ["--ae", str(ae_ckpt), "--ch", str(ch_ckpt), "--data", str(ae_dir)]
+    ev += ["--pairs", str(pairs_dir), "--codebook", str(tmp_path / "cb.npz")]
+    assert evaluate_main([*ev, "--json", str(tmp_path / "ev.json")]) == 0
+    res = json.loads((tmp_path / "ev.json").read_text())
+    assert res["ae"]["codebook_size"] == 50 and res["ae"]["n_samples"] == 64
+    assert 0 <= res["ae"]["augmented"]["median_deg"] <= 180
+    assert 0 <= res["pairs"]["classifier"]["auc"] <= 1 and res["pairs"]["n_pairs"] == 64
+    assert "drop_occluded" in res["pairs"]["ae_cosine"]
+    # wrong checkpoint types: one clear error each
+    with pytest.raises(ConfigError, match="is a CH classifier checkpoint"):
+        main(
+            [
+                "ch",
+                "--config",
+                CH_CFG,
+                "--data.data_dir",
+                str(pairs_dir),
+                "--model.init_from_ae",
+                str(ch_ckpt),
+            ]
+        )
+    with pytest.raises(ConfigError, match="expected a CH classifier checkpoint"):
+        main([*args[:7], "--ckpt_path", str(ae_ckpt)])
+
+
+def test_crop_size_mismatch(ae_dir: Path, tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    enc = "{channels: [8, 16], kernel: 3, embedding_dim: 16, size: 32}"
+    with pytest.raises(ConfigError, match="crop size 16 differs from the model config's size 32"):
+        main(["ae", "--config", AE_CFG, "--data.data_dir", str(ae_dir), "--model.encoder", enc])
+
+
+def test_console_error_is_one_line(tmp_path: Path) -> None:
+    bogus = tmp_path / "x.ckpt"
+    bogus.write_bytes(b"not a checkpoint")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    code = "from training.cli import cli; cli()"
+    args = ["ch", "--config", CH_CFG, "--model.init_from_ae", str(bogus)]
+    r = subprocess.run(
+        [sys.executable, "-c", code, *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=120,
+    )
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines()[-1].startswith(f"error: {bogus}: not a readable")
+    assert "Traceback" not in r.stderr

@@ -1,0 +1,99 @@
+"""ROC AUC, bootstrapped L2 and symmetry-aware angles against hand-computed values."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from training.lit import bootstrapped_l2, classifier_metrics
+from training.metrics import cosine_retrieval, roc_auc, symmetry_aware_angle
+
+
+def test_roc_auc_hand_case() -> None:
+    # positives (label 1): 0.9, 0.4 ; negatives: 0.8, 0.3, 0.1
+    # pairs pos > neg: 0.9 beats all 3; 0.4 beats 0.3, 0.1 -> 5 of 6
+    assert roc_auc(np.array([0.9, 0.4, 0.8, 0.3, 0.1]), np.array([1, 1, 0, 0, 0])) == pytest.approx(
+        5 / 6
+    )
+
+
+def test_roc_auc_ties_count_half_and_extremes() -> None:
+    assert roc_auc(np.array([0.5, 0.5]), np.array([1, 0])) == pytest.approx(0.5)
+    # pos {0.7, 0.5}, neg {0.5, 0.2}: 0.7>both (2), 0.5=0.5 (0.5), 0.5>0.2 (1) -> 3.5/4
+    assert roc_auc(np.array([0.7, 0.5, 0.5, 0.2]), np.array([1, 1, 0, 0])) == pytest.approx(3.5 / 4)
+    assert roc_auc(np.array([1.0, 2.0]), np.array([0, 1])) == 1.0
+    assert roc_auc(np.array([1.0, 2.0]), np.array([1, 0])) == 0.0
+    assert math.isnan(roc_auc(np.array([1.0, 2.0]), np.array([1, 1])))
+
+
+def test_roc_auc_matches_pairwise_definition() -> None:
+    rng = np.random.default_rng(0)
+    s = np.round(rng.normal(size=300), 1)  # many ties
+    y = rng.integers(0, 2, 300)
+    p, n = s[y == 1], s[y == 0]
+    ref = ((p[:, None] > n[None]).sum() + 0.5 * (p[:, None] == n[None]).sum()) / (p.size * n.size)
+    assert roc_auc(s, y) == pytest.approx(ref, abs=1e-12)
+
+
+def test_bootstrapped_l2_is_mean_of_worst_pixels() -> None:
+    target = torch.zeros(1, 3, 2, 2)
+    recon = torch.zeros(1, 3, 2, 2)
+    # pixel errors (mean over channels of squared diff): 4, 1, 0, 0.25 (for the 4 pixels)
+    recon[0, :, 0, 0] = 2.0
+    recon[0, :, 0, 1] = 1.0
+    recon[0, 0, 1, 1] = math.sqrt(0.75)
+    # ratio 0.5 -> top 2 pixels (4, 1) -> 2.5 ; ratio 1 -> (4+1+0+0.25)/4
+    assert bootstrapped_l2(recon, target, 0.5).item() == pytest.approx(2.5)
+    assert bootstrapped_l2(recon, target, 0.25).item() == pytest.approx(4.0)
+    assert bootstrapped_l2(recon, target, 1.0).item() == pytest.approx(5.25 / 4)
+    # two images: each keeps its own worst pixels
+    two = bootstrapped_l2(torch.cat([recon, target]), torch.cat([target, target]), 0.25)
+    assert two.item() == pytest.approx(2.0)
+
+
+def _rz(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def _rx(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def test_symmetry_aware_angle() -> None:
+    R_gt = np.eye(3)[None]
+    R_est = _rz(math.radians(170))[None]
+    assert np.degrees(symmetry_aware_angle(R_est, R_gt))[0] == pytest.approx(170)
+    flip = np.eye(4)
+    flip[:3, :3] = _rz(math.pi)
+    assert np.degrees(symmetry_aware_angle(R_est, R_gt, [flip]))[0] == pytest.approx(10)
+    # continuous symmetry about z: spin costs nothing, tilt costs its angle
+    cont = [{"axis": [0, 0, 1], "offset": [0, 0, 0]}]
+    tilt = (_rx(math.radians(25)) @ _rz(1.3))[None]
+    assert np.degrees(symmetry_aware_angle(tilt, R_gt, None, cont))[0] == pytest.approx(25)
+    # continuous + discrete flip of the axis (a can): upside-down costs nothing
+    upside = np.eye(4)
+    upside[:3, :3] = _rx(math.pi)
+    down = (_rx(math.radians(175)))[None]
+    assert np.degrees(symmetry_aware_angle(down, R_gt, [upside], cont))[0] == pytest.approx(5)
+
+
+def test_cosine_retrieval_and_classifier_metrics() -> None:
+    cb = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])
+    idx, cos = cosine_retrieval(np.array([[0.1, 2.0, 0.0], [0, 0, -1.0]]), cb)
+    assert idx.tolist() == [1, 0]
+    assert cos[0] == pytest.approx(2.0 / math.hypot(0.1, 2.0), rel=1e-6)
+    logit = np.array([-2.0, -1.0, 1.0, 3.0, 0.5, -0.5])
+    y = np.array([0, 0, 0, 1, 1, 1])
+    angle = np.array([2.0, 3.0, 1.0, 120.0, 30.0, 40.0])
+    visib = np.array([0.4, 0.9, 0.5, 1.0, 1.0, 1.0])
+    m = classifier_metrics(logit, y, angle, visib)
+    assert m["acc"] == pytest.approx(4 / 6)
+    assert m["aligned_rate_pos"] == pytest.approx(2 / 3)
+    assert m["aligned_rate_occluded"] == pytest.approx(0.5)  # visib 0.4 ok, 0.5 called mis
+    # hard: negatives at 30 and 40 deg (logits 0.5, -0.5) vs positives (-2, -1, 1): 4/6
+    assert m["auc_hard"] == pytest.approx(4 / 6)

@@ -1,0 +1,550 @@
+"""LightningModules: the autoencoder likelihood (``AELitModule``) and the CH classifier
+(``CHLitModule``).
+
+Both accept the batches of ``training.data`` (uint8 RGB ``(B,S,S,3)``), train with Adam and a
+linear-warmup + cosine learning-rate decay, and write a ``"chpf"`` entry into every checkpoint
+(model type, model config, crop spec of the data; see ``training.checkpoints``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import lightning.pytorch as pl
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from chpf.errors import ConfigError, DatasetError
+from training.checkpoints import (
+    CHECKPOINT_FORMAT_VERSION,
+    checkpoint_info,
+    load_autoencoder,
+    state_sha256,
+)
+from training.metrics import (
+    cosine_retrieval,
+    retrieval_summary,
+    roc_auc,
+    symmetry_aware_angle,
+)
+from training.models import Autoencoder, CHClassifier, Preprocess, full_classifier_config
+
+# ----------------------------------------------------------------------------- shared pieces
+
+
+def bootstrapped_l2(recon: torch.Tensor, target: torch.Tensor, ratio: float = 0.25) -> torch.Tensor:
+    """Bootstrapped L2 (Augmented Autoencoder): mean of the worst ``ratio`` of pixel errors.
+
+    ``recon``, ``target``: ``(B, 3, S, S)``. A pixel's error is its squared difference averaged
+    over the 3 channels; per image the ``ceil(ratio * S * S)`` largest are averaged, then the
+    images are averaged. ``ratio = 1`` gives the plain per-pixel MSE.
+    """
+    if not 0.0 < ratio <= 1.0:
+        raise ConfigError(f"bootstrap_ratio must be in (0, 1], got {ratio}")
+    err = (recon - target).pow(2).mean(dim=1).flatten(1)  # (B, S*S)
+    k = max(1, math.ceil(ratio * err.shape[1]))
+    if k < err.shape[1]:
+        err = torch.topk(err, k, dim=1, sorted=False).values
+    return err.mean()
+
+
+def jitter_colors(x: torch.Tensor, amount: float) -> torch.Tensor:
+    """Random per-image brightness/contrast and per-channel offset, ``x`` float in [0, 1]."""
+    if amount <= 0:
+        return x
+    b = x.shape[0]
+    gain = 1.0 + (torch.rand(b, 1, 1, 1, device=x.device) * 2 - 1) * amount
+    shift = (torch.rand(b, 3, 1, 1, device=x.device) * 2 - 1) * (amount / 2)
+    return (x * gain + shift).clamp_(0.0, 1.0)
+
+
+def _warmup_cosine(step: int, warmup: int, total: float, min_ratio: float) -> float:
+    if warmup > 0 and step < warmup:
+        return (step + 1) / warmup
+    if not math.isfinite(total) or total <= warmup:
+        return 1.0
+    progress = min(1.0, (step - warmup) / max(1.0, total - warmup))
+    return min_ratio + (1.0 - min_ratio) * 0.5 * (1.0 + math.cos(math.pi * progress))
+
+
+class _ChpfModule(pl.LightningModule):
+    """Common optimiser, schedule, data checks and checkpoint metadata."""
+
+    model_type: str = ""
+    model: torch.nn.Module
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.preprocess = Preprocess()
+        self.data_info: dict[str, Any] = {}
+
+    # --- data -----------------------------------------------------------------------------
+    def _model_size(self) -> int:
+        raise NotImplementedError
+
+    def setup(self, stage: str) -> None:
+        dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
+        if dm is not None and hasattr(dm, "check_crop_size"):
+            dm.check_crop_size(self._model_size())
+            man = dm.manifest
+            self.data_info = {
+                "crop": man.get("crop"),
+                "object": man.get("object"),
+                "object_fingerprint": man.get("object_fingerprint"),
+                "object_info": man.get("object_info"),
+                "data_dir": str(dm.data_dir),
+            }
+
+    def _images(self, batch: Mapping[str, torch.Tensor], key: str) -> torch.Tensor:
+        x = self.preprocess(batch[key])
+        if self.hparams.get("channels_last", True):
+            x = x.contiguous(memory_format=torch.channels_last)
+        return x
+
+    # --- optimisation ---------------------------------------------------------------------
+    def _param_groups(self) -> list[dict[str, Any]]:
+        return [{"params": [p for p in self.model.parameters() if p.requires_grad]}]
+
+    def configure_optimizers(self) -> Any:
+        hp = self.hparams
+        groups = self._param_groups()
+        opt = torch.optim.Adam(groups, lr=hp.lr, weight_decay=hp.weight_decay)
+        total = float(self.trainer.estimated_stepping_batches) if self._trainer else math.inf
+        warmup, min_ratio = int(hp.warmup_steps), float(hp.min_lr_ratio)
+        sched = torch.optim.lr_scheduler.LambdaLR(
+            opt, lambda s: _warmup_cosine(s, warmup, total, min_ratio)
+        )
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+    # --- checkpoint metadata ----------------------------------------------------------------
+    def chpf_info(self) -> dict[str, Any]:
+        return {
+            "model_type": self.model_type,
+            "format_version": CHECKPOINT_FORMAT_VERSION,
+            "model_config": self.model.config,
+            "crop": self.data_info.get("crop"),
+            "object": self.data_info.get("object"),
+            "object_fingerprint": self.data_info.get("object_fingerprint"),
+            "object_info": self.data_info.get("object_info"),
+            "data_dir": self.data_info.get("data_dir"),
+            "hparams": _plain(dict(self.hparams)),
+        }
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint["chpf"] = self.chpf_info()
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        info = checkpoint.get("chpf")
+        if not isinstance(info, dict) or info.get("model_type") != self.model_type:
+            got = info.get("model_type") if isinstance(info, dict) else None
+            raise ConfigError(f"checkpoint is of model type '{got}', expected '{self.model_type}'")
+        if not self.data_info:  # not set by setup() from a datamodule
+            keys = ("crop", "object", "object_fingerprint", "object_info", "data_dir")
+            self.data_info = {k: info.get(k) for k in keys}
+
+    def _gather_cat(self, chunks: list[torch.Tensor]) -> np.ndarray:
+        """Concatenate per-step tensors and gather them from all ranks (numpy)."""
+        x = torch.cat(chunks) if chunks else torch.zeros(0)
+        if self._trainer is not None and self.trainer.world_size > 1:
+            x = self.all_gather(x).flatten(0, 1)
+        return x.detach().cpu().numpy()
+
+
+def _plain(obj: Any) -> Any:
+    """Hyper-parameters as plain JSON-like Python (dicts, lists, numbers, strings)."""
+    if isinstance(obj, Mapping):
+        return {str(k): _plain(v) for k, v in obj.items() if not str(k).startswith("_")}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, (str, int, float, bool)) or obj is None:
+        return obj
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    return str(obj)
+
+
+# ----------------------------------------------------------------------------- validation codebook
+
+
+def load_val_codebook(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Arrays of a validation codebook npz (see ``training.codebook``); DatasetError if bad."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: validation codebook not found")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            cb = {k: z[k] for k in z.files}
+    except Exception as err:
+        raise DatasetError(f"{path}: unreadable codebook ({type(err).__name__})") from None
+    for k in ("rotations", "crops"):
+        if k not in cb:
+            raise DatasetError(f"{path}: codebook lacks array '{k}'")
+    if cb["crops"].ndim != 4 or cb["crops"].shape[0] != cb["rotations"].shape[0]:
+        raise DatasetError(f"{path}: crops {cb['crops'].shape} do not match rotations")
+    return cb
+
+
+def manifest_symmetries(object_info: Mapping[str, Any] | None) -> tuple[list, list[dict]]:
+    """(discrete 4x4 list, continuous list of dicts) from a manifest's ``object_info``."""
+    if not object_info:
+        return [], []
+    disc = [np.asarray(T, dtype=np.float64) for T in object_info.get("symmetries_discrete", [])]
+    cont = [dict(c) for c in object_info.get("symmetries_continuous", [])]
+    return disc, cont
+
+
+# ----------------------------------------------------------------------------- autoencoder
+
+
+class AELitModule(_ChpfModule):
+    """Augmented autoencoder: reconstruct the clean crop from the augmented one.
+
+    Args:
+        encoder: encoder config dict (``training.models``); the decoder mirrors it.
+        lr: Adam learning rate (peak, after warm-up).
+        weight_decay: Adam weight decay.
+        bootstrap_ratio: share of the worst pixels averaged by the bootstrapped L2 loss.
+        warmup_steps: linear warm-up steps; then cosine decay to ``lr * min_lr_ratio``.
+        min_lr_ratio: final learning rate as a fraction of ``lr``.
+        input_jitter: extra colour jitter on the (already augmented) inputs, 0 = off.
+        channels_last: channels_last memory format (faster convolutions on CPU).
+        val_codebook: npz from ``python -m training.codebook`` (rotations + clean crops); the
+            validation retrieval error is measured against it. Without it the clean targets
+            of the validation set serve as the codebook (an optimistic proxy).
+        val_codebook_batch: crops per forward pass when embedding the codebook.
+    """
+
+    model_type = "ae"
+
+    def __init__(
+        self,
+        encoder: dict[str, Any] | None = None,
+        lr: float = 1e-3,
+        weight_decay: float = 0.0,
+        bootstrap_ratio: float = 0.25,
+        warmup_steps: int = 100,
+        min_lr_ratio: float = 0.02,
+        input_jitter: float = 0.0,
+        channels_last: bool = True,
+        val_codebook: str | None = None,
+        val_codebook_batch: int = 256,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        if not 0.0 < bootstrap_ratio <= 1.0:
+            raise ConfigError(f"bootstrap_ratio must be in (0, 1], got {bootstrap_ratio}")
+        self.model = Autoencoder(encoder)
+        if channels_last:
+            self.model.to(memory_format=torch.channels_last)
+        self._val_cb: dict[str, np.ndarray] | None = None
+        self._cb_emb: np.ndarray | None = None
+        self._val_outputs: dict[str, list[torch.Tensor]] = {}
+
+    def _model_size(self) -> int:
+        return int(self.model.config["size"])
+
+    def setup(self, stage: str) -> None:
+        super().setup(stage)
+        if self.hparams.val_codebook and self._val_cb is None:
+            cb = load_val_codebook(self.hparams.val_codebook)
+            if cb["crops"].shape[1] != self._model_size():
+                raise ConfigError(
+                    f"{self.hparams.val_codebook}: codebook crop size {cb['crops'].shape[1]} "
+                    f"differs from the model config's size {self._model_size()}"
+                )
+            self._val_cb = cb
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.model(x)
+
+    def training_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        x = jitter_colors(self._images(batch, "input_rgb"), float(self.hparams.input_jitter))
+        target = self._images(batch, "target_rgb")
+        recon, _ = self.model(x)
+        loss = bootstrapped_l2(recon, target, float(self.hparams.bootstrap_ratio))
+        self.log("train/loss", loss, prog_bar=True)
+        return loss
+
+    # --- validation -------------------------------------------------------------------------
+    @torch.no_grad()
+    def embed(self, crops_u8: torch.Tensor | np.ndarray, batch: int = 256) -> np.ndarray:
+        """L2-normalised embeddings ``(N, E)`` of uint8 crops ``(N, S, S, 3)``."""
+        crops = torch.as_tensor(np.asarray(crops_u8))
+        was_training = self.model.training
+        self.model.eval()
+        out = []
+        for i in range(0, crops.shape[0], batch):
+            x = self._images({"x": crops[i : i + batch].to(self.device)}, "x")
+            out.append(F.normalize(self.model.encoder(x), dim=1).cpu())
+        self.model.train(was_training)
+        return torch.cat(out).numpy() if out else np.zeros((0, self.model.config["embedding_dim"]))
+
+    def on_validation_epoch_start(self) -> None:
+        self._val_outputs = {"z": [], "R": [], "tz": []}
+        self._cb_emb = None
+        if self._val_cb is not None:
+            self._cb_emb = self.embed(self._val_cb["crops"], int(self.hparams.val_codebook_batch))
+
+    def validation_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> None:
+        x = self._images(batch, "input_rgb")
+        target = self._images(batch, "target_rgb")
+        recon, z = self.model(x)
+        loss = bootstrapped_l2(recon, target, float(self.hparams.bootstrap_ratio))
+        mse = F.mse_loss(recon, target)
+        bs = x.shape[0]
+        self.log("val/recon_loss", loss, prog_bar=True, batch_size=bs, sync_dist=True)
+        self.log("val/mse", mse, batch_size=bs, sync_dist=True)
+        self._val_outputs["z"].append(F.normalize(z, dim=1))
+        self._val_outputs["R"].append(batch["R_allo"].float())
+        if self._val_cb is None:
+            self._val_outputs["tz"].append(F.normalize(self.model.encoder(target), dim=1))
+
+    def on_validation_epoch_end(self) -> None:
+        z = self._gather_cat(self._val_outputs["z"])
+        R = self._gather_cat(self._val_outputs["R"]).astype(np.float64)
+        if z.shape[0] == 0:
+            return
+        if self._val_cb is not None and self._cb_emb is not None:
+            cb_emb, cb_R = self._cb_emb, self._val_cb["rotations"].astype(np.float64)
+            sym_d = list(self._val_cb.get("symmetries_discrete", np.zeros((0, 4, 4))))
+            axes = self._val_cb.get("symmetries_continuous_axes", np.zeros((0, 3)))
+            sym_c = [{"axis": a} for a in axes]
+        else:
+            cb_emb, cb_R = self._gather_cat(self._val_outputs["tz"]), R
+            sym_d, sym_c = manifest_symmetries(self.data_info.get("object_info"))
+        idx, _ = cosine_retrieval(z, cb_emb)
+        err = np.degrees(symmetry_aware_angle(cb_R[idx], R, sym_d, sym_c))
+        summary = retrieval_summary(err, 30.0)
+        # identical on every rank (gathered): sync_dist only silences Lightning's DDP warning
+        self.log("val/retrieval_median_deg", summary["median_deg"], prog_bar=True, sync_dist=True)
+        self.log("val/retrieval_pct_below30", summary["pct_below"], sync_dist=True)
+        self._val_outputs = {}
+
+
+# ----------------------------------------------------------------------------- classifier
+
+
+class CHLitModule(_ChpfModule):
+    """Counter-Hypothetical classifier: BCE on P(misaligned) (label = 1 - aligned).
+
+    Args:
+        classifier: classifier config dict (``training.models``: encoder, head, share_twin).
+        init_from_ae: autoencoder checkpoint whose encoder initialises both branches (its
+            encoder config replaces ``classifier.encoder``). Recommended: from scratch the
+            classifier learns slowly.
+        freeze_encoder: shared-encoder mode -- the observed (and candidate) branch IS the
+            autoencoder's encoder, frozen; only the head trains, so at run time one encoder
+            pass per crop serves both L and C. Needs ``init_from_ae``.
+        lr: Adam learning rate of the head (peak).
+        encoder_lr_scale: encoder learning rate = ``lr * encoder_lr_scale`` (when trained).
+        weight_decay, warmup_steps, min_lr_ratio, channels_last: as in ``AELitModule``.
+        input_jitter: extra colour jitter on the observed crops, 0 = off.
+        hard_negative_deg: [lo, hi] angle range (degrees) of the hard negatives for val/auc_hard.
+        occluded_visib: [lo, hi] visible fraction of the occluded positives for
+            val/aligned_rate_occluded (share of them called aligned, p < 0.5).
+        occluded_pos_weight: BCE weight of positives with visib_fract <= occluded_visib[1]
+            (occlusion must not count against a pose), 1 = plain BCE.
+        hard_neg_weight: BCE weight of negatives whose angle is in ``hard_negative_deg``.
+    """
+
+    model_type = "ch"
+
+    def __init__(
+        self,
+        classifier: dict[str, Any] | None = None,
+        init_from_ae: str | None = None,
+        freeze_encoder: bool = False,
+        lr: float = 1e-3,
+        encoder_lr_scale: float = 0.3,
+        weight_decay: float = 0.0,
+        warmup_steps: int = 100,
+        min_lr_ratio: float = 0.02,
+        input_jitter: float = 0.0,
+        channels_last: bool = True,
+        hard_negative_deg: tuple[float, float] = (20.0, 45.0),
+        occluded_visib: tuple[float, float] = (0.3, 0.6),
+        occluded_pos_weight: float = 1.0,
+        hard_neg_weight: float = 1.0,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        if occluded_pos_weight <= 0 or hard_neg_weight <= 0:
+            raise ConfigError("occluded_pos_weight and hard_neg_weight must be > 0")
+        cfg = full_classifier_config(classifier)
+        self.ae_info: dict[str, Any] | None = None
+        if freeze_encoder and not init_from_ae:
+            raise ConfigError("freeze_encoder needs init_from_ae (an autoencoder checkpoint)")
+        if init_from_ae:
+            self.ae_info = checkpoint_info(init_from_ae, expect="ae")
+            cfg["encoder"] = dict(self.ae_info["model_config"])
+        if freeze_encoder:
+            cfg["share_twin"] = True
+            cfg["shares_ae_encoder"] = True
+        self.model = CHClassifier(cfg)
+        if freeze_encoder:
+            for p in self.model.obs_encoder.parameters():
+                p.requires_grad_(False)
+        if channels_last:
+            self.model.to(memory_format=torch.channels_last)
+        self.ae_encoder_sha256: str | None = None
+        self._ae_loaded = False
+        self._val_outputs: dict[str, list[torch.Tensor]] = {}
+
+    def _model_size(self) -> int:
+        return int(self.model.config["encoder"]["size"])
+
+    def setup(self, stage: str) -> None:
+        super().setup(stage)
+        resuming = self._trainer is not None and self.trainer.ckpt_path is not None
+        if self.hparams.init_from_ae and not self._ae_loaded and not resuming:
+            self.init_encoders_from_ae(self.hparams.init_from_ae)
+
+    def init_encoders_from_ae(self, path: str | os.PathLike) -> None:
+        """Copy an AE checkpoint's encoder weights into both branches (ConfigError if not 'ae')."""
+        ae, info = load_autoencoder(path)
+        self.model.obs_encoder.load_state_dict(ae.encoder.state_dict())
+        if self.model.cand_encoder is not self.model.obs_encoder:
+            self.model.cand_encoder.load_state_dict(ae.encoder.state_dict())
+        if self.hparams.channels_last:
+            self.model.to(memory_format=torch.channels_last)
+        self.ae_encoder_sha256 = state_sha256(ae.encoder)
+        ae_crop = info.get("crop")
+        if ae_crop and self.data_info.get("crop") and ae_crop != self.data_info["crop"]:
+            warnings.warn(
+                f"{path}: autoencoder was trained on crops {ae_crop}, the pairs use "
+                f"{self.data_info['crop']}",
+                stacklevel=2,
+            )
+        self._ae_loaded = True
+
+    def train(self, mode: bool = True) -> CHLitModule:
+        super().train(mode)
+        if self.hparams.get("freeze_encoder", False):
+            self.model.obs_encoder.eval()
+        return self
+
+    def _param_groups(self) -> list[dict[str, Any]]:
+        head = list(self.model.head.parameters())
+        enc_params = {id(p): p for p in self.model.obs_encoder.parameters()}
+        enc_params.update({id(p): p for p in self.model.cand_encoder.parameters()})
+        enc = [p for p in enc_params.values() if p.requires_grad]
+        groups: list[dict[str, Any]] = [{"params": head}]
+        if enc:
+            scale = float(self.hparams.encoder_lr_scale)
+            groups.append({"params": enc, "lr": float(self.hparams.lr) * scale})
+        return groups
+
+    def forward(self, obs: torch.Tensor, cand: torch.Tensor) -> torch.Tensor:
+        return self.model(obs, cand)
+
+    def _step(self, batch: Mapping[str, torch.Tensor], train: bool) -> tuple[torch.Tensor, ...]:
+        obs = self._images(batch, "obs_rgb")
+        if train:
+            obs = jitter_colors(obs, float(self.hparams.input_jitter))
+        cand = self._images(batch, "cand_rgb")
+        y = 1.0 - batch["aligned"].float()
+        logit = self.model(obs, cand)
+        hp = self.hparams
+        weight = None
+        if train and (hp.occluded_pos_weight != 1.0 or hp.hard_neg_weight != 1.0):
+            weight = torch.ones_like(y)
+            if "visib_fract" in batch:
+                occl = (y == 0) & (batch["visib_fract"] <= hp.occluded_visib[1])
+                weight = torch.where(occl, weight * hp.occluded_pos_weight, weight)
+            if "angle_deg" in batch:
+                a = batch["angle_deg"]
+                lo, hi = hp.hard_negative_deg
+                hard = (y == 1) & (a >= lo) & (a <= hi)
+                weight = torch.where(hard, weight * hp.hard_neg_weight, weight)
+            weight = weight / weight.mean()
+        loss = F.binary_cross_entropy_with_logits(logit, y, weight=weight)
+        return loss, logit, y
+
+    def training_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        loss, logit, y = self._step(batch, train=True)
+        acc = ((logit > 0).float() == y).float().mean()
+        self.log("train/loss", loss, prog_bar=True)
+        self.log("train/acc", acc)
+        return loss
+
+    def on_validation_epoch_start(self) -> None:
+        self._val_outputs = {"logit": [], "y": [], "angle": [], "visib": []}
+
+    def validation_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> None:
+        loss, logit, y = self._step(batch, train=False)
+        self.log("val/loss", loss, prog_bar=True, batch_size=y.shape[0], sync_dist=True)
+        self._val_outputs["logit"].append(logit.detach())
+        self._val_outputs["y"].append(y)
+        self._val_outputs["angle"].append(batch["angle_deg"].float())
+        self._val_outputs["visib"].append(batch["visib_fract"].float())
+
+    def on_validation_epoch_end(self) -> None:
+        out = {k: self._gather_cat(v) for k, v in self._val_outputs.items()}
+        self._val_outputs = {}
+        if out["y"].size == 0:
+            return
+        m = classifier_metrics(
+            out["logit"],
+            out["y"],
+            out["angle"],
+            out["visib"],
+            tuple(self.hparams.hard_negative_deg),
+            tuple(self.hparams.occluded_visib),
+        )
+        self.log("val/acc", m["acc"], prog_bar=True, sync_dist=True)
+        self.log("val/auc", m["auc"], prog_bar=True, sync_dist=True)
+        for k in ("auc_hard", "aligned_rate_pos", "aligned_rate_occluded"):
+            if not math.isnan(m[k]):
+                self.log(f"val/{k}", m[k], sync_dist=True)
+
+    def chpf_info(self) -> dict[str, Any]:
+        info = super().chpf_info()
+        info["shares_ae_encoder"] = bool(self.model.shares_ae_encoder)
+        info["ae_encoder_sha256"] = self.ae_encoder_sha256
+        info["ae_checkpoint"] = self.hparams.init_from_ae
+        return info
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        super().on_load_checkpoint(checkpoint)
+        self.ae_encoder_sha256 = checkpoint["chpf"].get("ae_encoder_sha256")
+        self._ae_loaded = True
+
+
+def classifier_metrics(
+    logit: np.ndarray,
+    y: np.ndarray,
+    angle_deg: np.ndarray,
+    visib: np.ndarray,
+    hard_deg: tuple[float, float] = (20.0, 45.0),
+    occluded_visib: tuple[float, float] = (0.3, 0.6),
+) -> dict[str, float]:
+    """Classifier figures from logits of P(misaligned) and labels ``y`` (1 = misaligned).
+
+    acc (threshold p = 0.5), auc (all pairs), auc_hard (all positives vs negatives whose angle
+    is in ``hard_deg``), aligned_rate_pos (positives called aligned), aligned_rate_occluded
+    (positives with visib_fract in ``occluded_visib`` called aligned).
+    """
+    logit, y = np.asarray(logit, np.float64), np.asarray(y) > 0.5
+    angle_deg, visib = np.asarray(angle_deg), np.asarray(visib)
+    called_mis = logit > 0
+    pos = ~y
+    hard = y & (angle_deg >= hard_deg[0]) & (angle_deg <= hard_deg[1])
+    occl = pos & (visib >= occluded_visib[0]) & (visib <= occluded_visib[1])
+    sel = pos | hard
+    nan = float("nan")
+    return {
+        "acc": float(np.mean(called_mis == y)),
+        "auc": roc_auc(logit, y),
+        "auc_hard": roc_auc(logit[sel], y[sel]) if hard.any() and pos.any() else nan,
+        "aligned_rate_pos": float(np.mean(~called_mis[pos])) if pos.any() else nan,
+        "aligned_rate_occluded": float(np.mean(~called_mis[occl])) if occl.any() else nan,
+        "n": float(y.size),
+        "n_hard": float(hard.sum()),
+        "n_occluded": float(occl.sum()),
+    }
