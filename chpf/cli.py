@@ -52,7 +52,9 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def atomic_save_npz(path: str | os.PathLike, compressed: bool = False, **arrays: np.ndarray) -> None:
+def atomic_save_npz(
+    path: str | os.PathLike, compressed: bool = False, **arrays: np.ndarray
+) -> None:
     """Atomically save arrays as an ``.npz`` file (uncompressed unless ``compressed``)."""
     buf = io.BytesIO()
     (np.savez_compressed if compressed else np.savez)(buf, **arrays)

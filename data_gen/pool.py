@@ -1,0 +1,565 @@
+"""Render pools, built once per object and cached on disk; samples are composed from them.
+
+Three pools, each a folder ``CACHE/{kind}-{object}-{key}/`` of ``.npy`` arrays plus
+``meta.json``; ``key`` hashes the object fingerprint, the CropSpec and the pool settings, so a
+changed mesh or setting builds a new pool and an unchanged one is reused (also by export):
+
+* codebook pool: the object alone at each ``RotationGrid.uniform(k)`` orientation in the
+  codebook convention (``chpf.crops.render_crops``): rgb, depth (float32 m), mask.
+* observation pool: the object at random off-centre poses in a virtual camera, rendered only in
+  a window around its projection (RGB under several lights, depth, mask), plus its clean
+  codebook-convention render at the same allocentric orientation (autoencoder target).
+* occluder pool: other built-in objects at random orientations in their own codebook
+  convention (rgb, mask), pasted as occluders and clutter.
+
+Window geometry: the window is the crop the tracker would cut at the true translation ``t``
+with a ``margin`` times larger side: ``crop_affines(t, K, CropSpec(P, D_r, f_r))`` with
+``P = ceil(margin * S)`` maps window pixels to image pixels (stored as ``win_affine``); the
+window is rendered directly with intrinsics ``K_win`` derived from that affine, so any crop
+``crop_affines(t', K, spec)`` of the full frame is the window warped by
+``win_affine^-1 o crop_affine`` (see ``crop_to_window_affines``).
+
+Cache folder: ``--cache-dir``, else ``$CHPF_CACHE/pools``, else ``~/.cache/chpf/pools``.
+Every pool is written to a temporary folder and renamed into place (atomic).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import multiprocessing as mp
+import os
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from chpf.crops import CropBatch, CropSpec, crop_affines
+from chpf.geometry import RotationGrid, egocentric_to_allocentric, random_rotations
+
+POOL_VERSION = 1
+CHUNK = 64  # renders per progress step / per worker task
+
+
+def default_cache_dir() -> Path:
+    """``$CHPF_CACHE/pools`` if CHPF_CACHE is set, else ``~/.cache/chpf/pools``."""
+    root = os.environ.get("CHPF_CACHE")
+    return (Path(root) if root else Path.home() / ".cache" / "chpf") / "pools"
+
+
+def _key(parts: dict) -> str:
+    return hashlib.sha1(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)[:40]
+
+
+def _pool_path(cache_dir: str | Path | None, kind: str, name: str, parts: dict) -> Path:
+    root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    return root / f"{kind}-{_safe(name)}-{_key({'kind': kind, 'v': POOL_VERSION, **parts})}"
+
+
+def _load_arrays(path: Path, names: list[str], mmap: bool) -> dict[str, np.ndarray] | None:
+    if not (path / "meta.json").is_file():
+        return None
+    try:
+        return {n: np.load(path / f"{n}.npy", mmap_mode="r" if mmap else None) for n in names}
+    except (OSError, ValueError):
+        return None
+
+
+def _save_pool(path: Path, arrays: dict[str, np.ndarray], meta: dict) -> None:
+    """Write arrays + meta.json into a temp folder next to ``path`` and rename it into place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f".tmp-{path.name}-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    for n, a in arrays.items():
+        np.save(tmp / f"{n}.npy", np.ascontiguousarray(a))
+    (tmp / "meta.json").write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
+    try:
+        os.rename(tmp, path)
+    except OSError:  # built concurrently by another process: keep theirs
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _chunks(n: int, size: int = CHUNK) -> list[tuple[int, int]]:
+    return [(a, min(a + size, n)) for a in range(0, n, size)]
+
+
+class TaskRunner:
+    """Maps a function over tasks in order, in-process (workers <= 1) or in a lazily started
+    pool of ``workers`` spawned processes that is shared by every pool build using it."""
+
+    def __init__(self, workers: int = 1) -> None:
+        self.workers = int(workers)
+        self._pool = None
+
+    def imap(self, fn, tasks: list):
+        if self.workers <= 1 or len(tasks) <= 1:
+            return map(fn, tasks)
+        if self._pool is None:
+            self._pool = mp.get_context("spawn").Pool(self.workers)
+        return self._pool.imap(fn, tasks)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.close()
+            self._pool.join()
+            self._pool = None
+
+    def __enter__(self) -> TaskRunner:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if exc[0] is not None and self._pool is not None:
+            self._pool.terminate()
+        self.close()
+
+
+def _run_chunks(fn, tasks: list, runner: TaskRunner, desc: str, progress: bool, total: int) -> list:
+    """Run ``fn(task) -> (n_done, result)`` over tasks (results in order) with a progress bar."""
+    bar = tqdm(total=total, desc=desc, unit="render", disable=not progress or None, leave=False)
+    out = []
+    try:
+        for n, r in runner.imap(fn, tasks):
+            out.append(r)
+            bar.update(n)
+    finally:
+        bar.close()
+    return out
+
+
+# Per-process renderer cache for pool building (one GL context per size).
+_RENDERERS: dict[tuple[int, int], Any] = {}
+
+
+def _renderer(w: int, h: int):
+    from chpf.render import Renderer  # imported lazily: generating from cached pools needs no GL
+
+    if (w, h) not in _RENDERERS:
+        _RENDERERS[(w, h)] = Renderer(w, h)
+    return _RENDERERS[(w, h)]
+
+
+# Per-process object cache: the renderer caches GL meshes by mesh identity, so every task of
+# the same object must use the same (first unpickled) instance.
+_OBJECTS: dict[str, Any] = {}
+
+
+def _same_object(obj) -> Any:
+    from chpf.objects import object_fingerprint
+
+    return _OBJECTS.setdefault(object_fingerprint(obj), obj)
+
+
+def _crops_task(task: tuple) -> tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    from chpf.crops import render_crops
+
+    obj, R, spec = task
+    obj = _same_object(obj)
+    cb = render_crops(_renderer(spec.size, spec.size), obj, R, spec)
+    return len(R), (np.asarray(cb.rgb), np.asarray(cb.depth, np.float32), np.asarray(cb.mask))
+
+
+def render_crops_parallel(
+    obj, R: np.ndarray, spec: CropSpec, runner: TaskRunner, progress: bool = True, desc: str = ""
+) -> CropBatch:
+    """``render_crops`` for many orientations R (N,3,3), in chunks, through ``runner``."""
+    tasks = [(obj, R[a:b], spec) for a, b in _chunks(len(R))]
+    parts = _run_chunks(_crops_task, tasks, runner, desc, progress, len(R))
+    return CropBatch(
+        rgb=np.concatenate([p[0] for p in parts]),
+        depth=np.concatenate([p[1] for p in parts]),
+        mask=np.concatenate([p[2] for p in parts]),
+    )
+
+
+# ----------------------------------------------------------------------------- codebook pool
+
+
+def codebook_pool_path(obj, spec: CropSpec, k: int, cache_dir: str | Path | None = None) -> Path:
+    """Cache folder of the codebook pool of (obj, spec, k)."""
+    from chpf.objects import object_fingerprint
+
+    parts = {"object": object_fingerprint(obj), "crop": spec.to_dict(), "k": int(k)}
+    return _pool_path(cache_dir, "codebook", obj.name, parts)
+
+
+def codebook_pool(
+    obj,
+    spec: CropSpec,
+    k: int,
+    cache_dir: str | Path | None = None,
+    *,
+    workers: int = 1,
+    progress: bool = True,
+    mmap: bool = False,
+    runner: TaskRunner | None = None,
+) -> tuple[RotationGrid, CropBatch]:
+    """(RotationGrid.uniform(k), CropBatch (k,S,S) rgb/depth/mask) of ``obj`` in the codebook
+    convention (object at (0,0,D_r), K = spec.K), rendered once and cached under ``cache_dir``
+    (None: ``default_cache_dir()``). ``mmap``: return read-only memory maps. ``workers``:
+    render processes when the pool must be built (or pass a shared ``runner``)."""
+    path = codebook_pool_path(obj, spec, k, cache_dir)
+    grid = RotationGrid.uniform(int(k))
+    arrays = _load_arrays(path, ["rgb", "depth", "mask"], mmap)
+    if arrays is None:
+        t0 = time.perf_counter()
+        with TaskRunner(workers) as own:
+            cb = render_crops_parallel(
+                obj,
+                grid.rotations,
+                spec,
+                runner or own,
+                progress,
+                f"codebook pool {obj.name} k={k}",
+            )
+        meta = {
+            "kind": "codebook",
+            "object": obj.name,
+            "crop": spec.to_dict(),
+            "k": int(k),
+            "build_seconds": round(time.perf_counter() - t0, 2),
+        }
+        _save_pool(path, {"rgb": cb.rgb, "depth": cb.depth, "mask": cb.mask}, meta)
+        arrays = _load_arrays(path, ["rgb", "depth", "mask"], mmap)
+        if arrays is None:
+            arrays = {"rgb": cb.rgb, "depth": cb.depth, "mask": cb.mask}
+    return grid, CropBatch(rgb=arrays["rgb"], depth=arrays["depth"], mask=arrays["mask"])
+
+
+def load_codebook_pool(path: str | Path, mmap: bool = True) -> CropBatch:
+    """The CropBatch of an existing codebook pool folder (no object needed)."""
+    arrays = _load_arrays(Path(path), ["rgb", "depth", "mask"], mmap)
+    if arrays is None:
+        raise FileNotFoundError(f"{path}: no codebook pool")
+    return CropBatch(rgb=arrays["rgb"], depth=arrays["depth"], mask=arrays["mask"])
+
+
+# ----------------------------------------------------------------------------- observation pool
+
+
+@dataclass
+class ObsPool:
+    """Observation pool arrays (n entries, L lights, window P, crop S).
+
+    R_ego (n,3,3), t (n,3) m, K (n,3,3) virtual full-frame camera, win_affine (n,2,3) window
+    pixel -> image pixel, rgb (n,L,P,P,3) u8, depth (n,P,P) f16 m, mask (n,P,P) bool,
+    alpha (n,P,P) u8 anti-aliased coverage (rgb is premultiplied by it: composite as
+    ``rgb + bg * (1 - alpha/255)``), R_allo (n,3,3), clean_rgb (n,S,S,3) u8 and clean_mask
+    (n,S,S) bool (codebook convention, the autoencoder target).
+    """
+
+    R_ego: np.ndarray
+    t: np.ndarray
+    K: np.ndarray
+    win_affine: np.ndarray
+    rgb: np.ndarray
+    depth: np.ndarray
+    mask: np.ndarray
+    alpha: np.ndarray
+    R_allo: np.ndarray
+    clean_rgb: np.ndarray
+    clean_mask: np.ndarray
+    path: Path | None = None
+
+    FIELDS = (
+        "R_ego", "t", "K", "win_affine", "rgb", "depth", "mask", "alpha", "R_allo",
+        "clean_rgb", "clean_mask",
+    )  # fmt: skip
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+def window_size(spec: CropSpec, margin: float) -> int:
+    """Window side P = ceil(margin * S) pixels."""
+    return math.ceil(margin * spec.size - 1e-9)
+
+
+def window_spec(spec: CropSpec, margin: float) -> CropSpec:
+    """CropSpec of the window: same D_r and f_r as ``spec``, side ``window_size``."""
+    return CropSpec(
+        size=window_size(spec, margin), render_distance=spec.render_distance, focal=spec.focal
+    )
+
+
+def window_intrinsics(K: np.ndarray, win_affine: np.ndarray) -> np.ndarray:
+    """K_win (3,3) that renders exactly the window whose pixel -> image affine is ``win_affine``
+    (u = a i + b, v = c j + d) for a full-frame camera ``K``."""
+    a, b = win_affine[0, 0], win_affine[0, 2]
+    c, d = win_affine[1, 1], win_affine[1, 2]
+    return np.array(
+        [[K[0, 0] / a, K[0, 1] / a, (K[0, 2] - b) / a], [0.0, K[1, 1] / c, (K[1, 2] - d) / c],
+         [0.0, 0.0, 1.0]]
+    )  # fmt: skip
+
+
+def crop_to_window_affines(
+    t_est: np.ndarray, K: np.ndarray, win_affine: np.ndarray, spec: CropSpec
+) -> np.ndarray:
+    """(N,2,3) crop pixel -> window pixel affines: the crop the tracker would cut at t_est (N,3)
+    from the full frame of camera K (N,3,3), expressed in window pixels (win_affine (N,2,3))."""
+    n = len(t_est)
+    A = np.empty((n, 2, 3))
+    for i in range(n):
+        A[i] = crop_affines(t_est[i : i + 1], K[i], spec)[0]
+    W3 = np.zeros((n, 3, 3))
+    W3[:, :2] = win_affine
+    W3[:, 2, 2] = 1.0
+    A3 = np.zeros((n, 3, 3))
+    A3[:, :2] = A
+    A3[:, 2, 2] = 1.0
+    return (np.linalg.inv(W3) @ A3)[:, :2]
+
+
+def sample_obs_poses(obj_diameter: float, cfg: dict, n: int, rng: np.random.Generator) -> dict:
+    """Random poses and cameras of the observation pool (``cfg``: the obs_pool section).
+
+    Haar orientation; fx = fy uniform in focal_range, principal point at the image centre;
+    z uniform in z_range (at least min_z_diameters diameters); projection uniform over the
+    image, keeping the object's bounding circle inside when possible.
+    """
+    W, H = cfg["image_width"], cfg["image_height"]
+    f = rng.uniform(*cfg["focal_range"], n)
+    z = np.maximum(rng.uniform(*cfg["z_range"], n), cfg["min_z_diameters"] * obj_diameter)
+    r = f * 0.5 * obj_diameter / z
+    cx, cy = (W - 1) / 2.0, (H - 1) / 2.0
+    ux = np.clip((W - 1) / 2.0 - r, 0, None)
+    vy = np.clip((H - 1) / 2.0 - r, 0, None)
+    u = cx + rng.uniform(-1, 1, n) * ux
+    v = cy + rng.uniform(-1, 1, n) * vy
+    t = np.stack([(u - cx) * z / f, (v - cy) * z / f, z], axis=1)
+    K = np.zeros((n, 3, 3))
+    K[:, 0, 0] = f
+    K[:, 1, 1] = f
+    K[:, 0, 2] = cx
+    K[:, 1, 2] = cy
+    K[:, 2, 2] = 1.0
+    L = cfg["lights_per_entry"]
+    light_dir = np.concatenate([rng.normal(0.0, 0.6, (n, L, 2)), np.ones((n, L, 1))], axis=2)
+    return {
+        "R_ego": random_rotations(n, rng),
+        "t": t,
+        "K": K,
+        "light": rng.uniform(*cfg["light_intensity_range"], (n, L)),
+        "ambient": rng.uniform(*cfg["ambient_range"], (n, L)),
+        "light_dir": light_dir / np.linalg.norm(light_dir, axis=2, keepdims=True),
+    }
+
+
+def _obs_task(task: tuple) -> tuple[int, dict[str, np.ndarray]]:
+    from chpf.crops import render_crops
+
+    obj, spec, margin, poses = task
+    obj = _same_object(obj)
+    wspec = window_spec(spec, margin)
+    P = wspec.size
+    n = len(poses["t"])
+    L = poses["light"].shape[1]
+    win_affine = np.empty((n, 2, 3))
+    rgb = np.empty((n, L, P, P, 3), np.uint8)
+    depth = np.empty((n, P, P), np.float16)
+    mask = np.empty((n, P, P), bool)
+    alpha = np.empty((n, P, P), np.uint8)
+    ren = _renderer(P, P)
+    for i in range(n):
+        R, t, K = poses["R_ego"][i], poses["t"][i], poses["K"][i]
+        win_affine[i] = crop_affines(t[None], K, wspec)[0]
+        Kw = window_intrinsics(K, win_affine[i])
+        for j in range(L):
+            out = ren.render(
+                [(obj, R, t)],
+                Kw,
+                light_intensity=float(poses["light"][i, j]),
+                ambient=float(poses["ambient"][i, j]),
+                light_direction=poses["light_dir"][i, j],
+            )
+            rgb[i, j] = out.rgb
+            if j == 0:
+                depth[i] = out.depth.astype(np.float16)
+                mask[i] = out.masks[0]
+                alpha[i] = out.alpha
+    R_allo = egocentric_to_allocentric(poses["R_ego"], poses["t"])
+    clean = render_crops(_renderer(spec.size, spec.size), obj, R_allo, spec)
+    return n, {
+        "win_affine": win_affine,
+        "rgb": rgb,
+        "depth": depth,
+        "mask": mask,
+        "alpha": alpha,
+        "R_allo": R_allo,
+        "clean_rgb": np.asarray(clean.rgb),
+        "clean_mask": np.asarray(clean.mask),
+    }
+
+
+def obs_pool_path(obj, spec: CropSpec, cfg: dict, cache_dir: str | Path | None = None) -> Path:
+    """Cache folder of the observation pool of (obj, spec, obs_pool settings ``cfg``)."""
+    from chpf.objects import object_fingerprint
+
+    parts = {"object": object_fingerprint(obj), "crop": spec.to_dict(), "settings": cfg}
+    return _pool_path(cache_dir, "obs", obj.name, parts)
+
+
+def obs_pool(
+    obj,
+    spec: CropSpec,
+    cfg: dict,
+    cache_dir: str | Path | None = None,
+    *,
+    workers: int = 1,
+    progress: bool = True,
+    mmap: bool = True,
+    runner: TaskRunner | None = None,
+) -> ObsPool:
+    """The observation pool of ``obj`` (``cfg``: the obs_pool config section), cached."""
+    path = obs_pool_path(obj, spec, cfg, cache_dir)
+    arrays = _load_arrays(path, list(ObsPool.FIELDS), mmap)
+    if arrays is None:
+        t0 = time.perf_counter()
+        n = int(cfg["num_entries"])
+        poses = sample_obs_poses(obj.diameter, cfg, n, np.random.default_rng([cfg["seed"], 1001]))
+        tasks = [
+            (obj, spec, cfg["margin"], {k: v[a:b] for k, v in poses.items()})
+            for a, b in _chunks(n, 32)
+        ]
+        with TaskRunner(workers) as own:
+            parts = _run_chunks(
+                _obs_task, tasks, runner or own, f"obs pool {obj.name}", progress, n
+            )
+        arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        arrays.update(R_ego=poses["R_ego"], t=poses["t"], K=poses["K"])
+        meta = {
+            "kind": "obs",
+            "object": obj.name,
+            "crop": spec.to_dict(),
+            "settings": cfg,
+            "window_size": window_size(spec, cfg["margin"]),
+            "build_seconds": round(time.perf_counter() - t0, 2),
+        }
+        _save_pool(path, arrays, meta)
+        arrays = _load_arrays(path, list(ObsPool.FIELDS), mmap) or arrays
+    return ObsPool(**{k: arrays[k] for k in ObsPool.FIELDS}, path=path)
+
+
+def load_obs_pool(path: str | Path, mmap: bool = True) -> ObsPool:
+    """The ObsPool of an existing observation pool folder (no object needed)."""
+    arrays = _load_arrays(Path(path), list(ObsPool.FIELDS), mmap)
+    if arrays is None:
+        raise FileNotFoundError(f"{path}: no observation pool")
+    return ObsPool(**{k: arrays[k] for k in ObsPool.FIELDS}, path=Path(path))
+
+
+# ----------------------------------------------------------------------------- occluder pool
+
+
+@dataclass
+class OccluderPool:
+    """Other objects' crops for occluders/clutter: rgb (n,S,S,3) u8, mask (n,S,S) bool."""
+
+    rgb: np.ndarray
+    mask: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.rgb.shape[0])
+
+
+def occluder_objects(names: list[str], exclude_fingerprint: str | None) -> list:
+    """Built-in objects named in ``names`` except the one with ``exclude_fingerprint``."""
+    from chpf.objects import builtin_object, object_fingerprint
+
+    objs = [builtin_object(n) for n in names]
+    return [o for o in objs if object_fingerprint(o) != exclude_fingerprint]
+
+
+def occluder_pool(
+    objects: list,
+    size: int,
+    cfg: dict,
+    cache_dir: str | Path | None = None,
+    *,
+    workers: int = 1,
+    progress: bool = True,
+    mmap: bool = True,
+    runner: TaskRunner | None = None,
+) -> OccluderPool:
+    """Crops (side ``size``) of ``objects`` at random orientations (``cfg``: occluder_pool
+    section; entries split evenly over the objects), cached. Empty pool if no objects."""
+    from chpf.objects import object_fingerprint
+
+    if not objects:
+        return OccluderPool(np.zeros((0, size, size, 3), np.uint8), np.zeros((0, size, size), bool))
+    path = occluder_pool_path(objects, size, cfg, cache_dir)
+    arrays = _load_arrays(path, ["rgb", "mask"], mmap)
+    if arrays is None:
+        parts = {
+            "objects": [object_fingerprint(o) for o in objects],
+            "size": int(size),
+            "n": int(cfg["num_entries"]),
+            "seed": int(cfg["seed"]),
+        }
+        t0 = time.perf_counter()
+        rng = np.random.default_rng([cfg["seed"], 2002])
+        n = int(cfg["num_entries"])
+        counts = [n // len(objects) + (i < n % len(objects)) for i in range(len(objects))]
+        rgbs, masks = [], []
+        with TaskRunner(workers) as own:
+            for o, c in zip(objects, counts, strict=True):
+                if c == 0:
+                    continue
+                spec = CropSpec.for_object(o.diameter, size)
+                cb = render_crops_parallel(
+                    o,
+                    random_rotations(c, rng),
+                    spec,
+                    runner or own,
+                    progress,
+                    f"occluder pool {o.name}",
+                )
+                rgbs.append(cb.rgb)
+                masks.append(cb.mask)
+        arrays = {"rgb": np.concatenate(rgbs), "mask": np.concatenate(masks)}
+        meta = {
+            "kind": "occluders",
+            **parts,
+            "names": [o.name for o in objects],
+            "build_seconds": round(time.perf_counter() - t0, 2),
+        }
+        _save_pool(path, arrays, meta)
+        arrays = _load_arrays(path, ["rgb", "mask"], mmap) or arrays
+    return OccluderPool(arrays["rgb"], arrays["mask"])
+
+
+def occluder_pool_path(
+    objects: list, size: int, cfg: dict, cache_dir: str | Path | None = None
+) -> Path | None:
+    """Cache folder of the occluder pool of ``objects`` (None if there are none)."""
+    from chpf.objects import object_fingerprint
+
+    if not objects:
+        return None
+    parts = {
+        "objects": [object_fingerprint(o) for o in objects],
+        "size": int(size),
+        "n": int(cfg["num_entries"]),
+        "seed": int(cfg["seed"]),
+    }
+    return _pool_path(cache_dir, "occluders", "+".join(o.name for o in objects), parts)
+
+
+def load_occluder_pool(path: str | Path | None, size: int, mmap: bool = True) -> OccluderPool:
+    """The OccluderPool of an existing folder; an empty pool for None."""
+    if path is None:
+        return OccluderPool(np.zeros((0, size, size, 3), np.uint8), np.zeros((0, size, size), bool))
+    arrays = _load_arrays(Path(path), ["rgb", "mask"], mmap)
+    if arrays is None:
+        raise FileNotFoundError(f"{path}: no occluder pool")
+    return OccluderPool(arrays["rgb"], arrays["mask"])

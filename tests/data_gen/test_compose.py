@@ -1,0 +1,161 @@
+"""Sample composition from the pools: labels, geometry of the crops, occlusion accounting."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from chpf.crops import CropSpec, crop_affines, extract_crops
+from chpf.geometry import geodesic_angle, random_rotations
+from chpf.objects import builtin_object
+from data_gen.compose import Composer, ComposerContext, build_pools
+from data_gen.config import load_config
+from data_gen.pool import window_intrinsics
+from data_gen.rotations import grid_spacing_deg, symmetric_angle, symmetry_set
+
+
+@pytest.fixture
+def composer(pool_cache, tiny_sets):
+    """``composer(kind="pairs", name="mug", *sets)`` -> (Composer, object) on tiny pools."""
+
+    def make(kind="pairs", name="mug", *sets):
+        cfg = load_config(None, [*tiny_sets, *sets])
+        obj = builtin_object(name)
+        spec = CropSpec.for_object(obj.diameter, cfg["crop"]["size"])
+        setup = build_pools(ComposerContext(obj, spec, cfg, str(pool_cache), kind), progress=False)
+        return Composer(setup), obj
+
+    return make
+
+
+def _iou(a, b):
+    return (a & b).sum() / max((a | b).sum(), 1)
+
+
+def test_labels_and_angles(composer):
+    comp, _ = composer()
+    out = comp.pairs(np.random.default_rng(0), 200)
+    assert out["aligned"].sum() == 100
+    spacing = grid_spacing_deg(comp.grid)["max"]
+    pos, neg = out["aligned"] == 1, out["aligned"] == 0
+    ang = np.degrees(
+        geodesic_angle(out["obs_R_allo"].astype(float), out["cand_R_allo"].astype(float))
+    )
+    np.testing.assert_allclose(ang, out["angle_deg"], atol=1e-2)  # mug: no symmetry
+    assert ang[pos].max() <= 10.0 + spacing + 1e-3
+    assert ang[neg].min() >= 20.0
+    # candidates are codebook entries, rendered in the codebook pool
+    idx = comp.grid.nearest(out["cand_R_allo"].astype(float))
+    np.testing.assert_array_equal(out["cand_rgb"], comp.cb.rgb[idx])
+    # hard negatives exist (20-45 degrees before snapping)
+    assert (ang[neg] < 60).sum() > 10
+
+
+def test_negatives_respect_continuous_symmetry(composer):
+    comp, obj = composer("pairs", "can")
+    out = comp.pairs(np.random.default_rng(1), 100)
+    rots, axes = symmetry_set(obj.symmetries_discrete, obj.symmetries_continuous)
+    sym = np.degrees(
+        symmetric_angle(
+            out["obs_R_allo"].astype(float), out["cand_R_allo"].astype(float), rots, axes
+        )
+    )
+    np.testing.assert_allclose(sym, out["angle_deg"], atol=1e-2)
+    assert sym[out["aligned"] == 0].min() >= 20.0
+    # a rotation about the can's axis is no error at all
+    R = random_rotations(5, np.random.default_rng(2))
+    Rz = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
+    assert np.all(symmetric_angle(R, R @ Rz, rots, axes) < 1e-6)
+
+
+def test_zero_perturbation_positive_lines_up(composer):
+    comp, _ = composer(
+        "pairs",
+        "mug",
+        "pairs.positive_share=1.0",
+        "pairs.pos_rot_sigma_deg=0.0",
+        "pairs.pos_rot_max_deg=0.0",
+        "crop_jitter.xy_sigma=0.0",
+        "crop_jitter.z_sigma=0.0",
+        "occlusion.prob=0.0",
+    )
+    out = comp.pairs(np.random.default_rng(3), 30, debug=True)
+    clean = np.asarray(comp.obs.clean_mask)[out["entry"]]
+    iou_clean = np.array([_iou(a, b) for a, b in zip(out["obs_mask"], clean, strict=True)])
+    iou_cand = np.array(
+        [_iou(a, b) for a, b in zip(out["obs_mask"], out["cand_mask"], strict=True)]
+    )
+    # observed crop (cut from the off-centre window) vs the codebook render at the same
+    # allocentric orientation: the same silhouette up to perspective / pixel rounding
+    assert iou_clean.min() > 0.85 and np.median(iou_clean) > 0.92
+    # vs the nearest entry of a coarse 200-entry grid: still mostly overlapping
+    assert np.median(iou_cand) > 0.6
+    assert np.all(out["visib_fract"] == 1.0)
+
+
+def test_window_is_the_trackers_crop(composer):
+    """Window geometry: a crop cut from the window through crop_to_window_affines equals the
+    crop chpf.crops would cut from the full frame (here the full frame is rendered)."""
+    from chpf.render import Renderer
+
+    comp, obj = composer()
+    e = 3
+    K, t = np.asarray(comp.obs.K[e]), np.asarray(comp.obs.t[e])
+    W, H = 640, 480
+    full = Renderer(W, H).render([(obj, np.asarray(comp.obs.R_ego[e]), t)], K)
+    t_est = t + np.array([0.004, -0.003, 0.02])
+    A = crop_affines(t_est[None], K, comp.spec)
+    from_full = extract_crops(full.masks[0], A, comp.S)[0]
+    from data_gen.pool import crop_to_window_affines
+
+    M = crop_to_window_affines(
+        t_est[None], K[None], np.asarray(comp.obs.win_affine[e])[None], comp.spec
+    )
+    from_win = extract_crops(np.asarray(comp.obs.mask[e]), M, comp.S)[0]
+    assert _iou(from_full, from_win) > 0.93
+    # the window intrinsics place the projection of t at the window centre
+    Kw = window_intrinsics(K, np.asarray(comp.obs.win_affine[e]))
+    uv = Kw @ t / t[2]
+    np.testing.assert_allclose(uv[:2], (comp.P - 1) / 2, atol=1e-6)
+
+
+def test_occlusion_hides_the_configured_fraction(composer):
+    comp, _ = composer("ae", "mug", "occlusion.prob=1.0", "occlusion.fraction_range=[0.4, 0.4]")
+    rng = np.random.default_rng(4)
+    vis = []
+    for e in range(40):
+        win, obj_mask, visible, v = comp.compose_window(e, rng)
+        assert v == pytest.approx(visible.sum() / obj_mask.sum())
+        assert not np.any(visible & ~obj_mask)
+        vis.append(v)
+        # the hidden object pixels really show something else
+        hidden = obj_mask & ~visible
+        changed = np.abs(win.astype(int) - np.asarray(comp.obs.rgb[e, 0], int)).sum(-1) > 0
+        assert changed[hidden].mean() > 0.8
+    vis = np.array(vis)
+    assert np.median(np.abs(vis - 0.6)) < 0.05
+    assert np.mean(np.abs(vis - 0.6) < 0.1) > 0.8
+    # crop level: visib_fract agrees with the warped masks
+    out = comp.ae(rng, 30, debug=True)
+    crop_vis = out["input_visible_mask"].sum((1, 2)) / out["input_mask"].sum((1, 2))
+    assert np.median(np.abs(crop_vis - out["visib_fract"])) < 0.05
+    # heavy occlusion is still kept
+    comp2, _ = composer("pairs", "mug", "occlusion.prob=1.0", "occlusion.fraction_range=[0.7, 0.7]")
+    out2 = comp2.pairs(np.random.default_rng(5), 40)
+    assert np.median(out2["visib_fract"]) < 0.4 and out2["aligned"].sum() == 20
+
+
+def test_ae_targets(composer):
+    comp, _ = composer("ae")
+    out = comp.ae(np.random.default_rng(6), 20, debug=True)
+    e = out["entry"]
+    np.testing.assert_array_equal(out["target_rgb"], np.asarray(comp.obs.clean_rgb)[e])
+    np.testing.assert_array_equal(out["target_mask"], np.asarray(comp.obs.clean_mask)[e])
+    assert out["target_mask"].sum((1, 2)).min() > 50
+    R = out["R_allo"].astype(float)
+    np.testing.assert_allclose(
+        R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-5
+    )
+    # the input is the observed crop: background around the object, not black
+    bg = ~out["target_mask"]
+    assert out["input_rgb"][bg].mean() > 5
