@@ -1,0 +1,105 @@
+"""Where the per-frame 2D detection boxes come from when tracking a BOP dataset.
+
+1. ``--detections FILE``: a BOP detections JSON list ({"scene_id", "image_id", "category_id",
+   "bbox": [x, y, w, h] px, "score", "time"}; the best-scoring box per image and object).
+2. Without a file: the simulated detector (``data_gen.sequences.SimulatedDetector``: the visible
+   ground-truth box of scene_gt_info.json with noise and missed frames; NOT a real detector).
+   If the dataset root holds ``detections_sim.json`` (written by ``chpf-gen-data sequences``)
+   its boxes are used; otherwise the detector runs on the fly on scene_gt_info.json.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from chpf.bop import BopDataset, BopScene, read_detections
+from chpf.errors import DatasetError
+from chpf.tracking.types import Box
+
+SIM_FILE = "detections_sim.json"
+
+
+class BoxSource:
+    """Boxes per (scene_id, im_id, obj_id). ``description`` is printed as the run's first line."""
+
+    description = ""
+    simulated = False
+
+    def start_scene(self, scene: BopScene) -> None:
+        """Called before a scene's first frame (resets per-scene state)."""
+
+    def box(self, scene: BopScene, im_id: int, obj_id: int, width: int, height: int) -> Box | None:
+        raise NotImplementedError
+
+
+class FileBoxes(BoxSource):
+    """Boxes read from a BOP detections JSON file."""
+
+    def __init__(self, path: Path, simulated: bool = False) -> None:
+        self.boxes = read_detections(path)
+        self.simulated = simulated
+        what = (
+            "simulated detector (noisy visible ground-truth boxes, not a real detector)"
+            if simulated
+            else "detections"
+        )
+        self.description = f"detections: {what} from {path} ({len(self.boxes)} boxes)"
+
+    def box(self, scene: BopScene, im_id: int, obj_id: int, width: int, height: int) -> Box | None:
+        return self.boxes.get((scene.scene_id, im_id, obj_id))
+
+
+class SimulatedBoxes(BoxSource):
+    """The simulated detector run on the fly on scene_gt_info.json (seeded per scene)."""
+
+    simulated = True
+
+    def __init__(self, seed: int) -> None:
+        from data_gen.config import default_config  # lazy: only for datasets without detections
+
+        self.cfg = default_config()["detector"]
+        self.seed = int(seed)
+        self.detector = None
+        self.description = (
+            "detections: simulated detector (noisy visible ground-truth boxes from "
+            "scene_gt_info.json, not a real detector)"
+        )
+
+    def start_scene(self, scene: BopScene) -> None:
+        from data_gen.sequences import SimulatedDetector
+
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 4, scene.scene_id]))
+        self.detector = SimulatedDetector(self.cfg, rng)
+
+    def box(self, scene: BopScene, im_id: int, obj_id: int, width: int, height: int) -> Box | None:
+        gts = scene.gt.get(im_id, [])
+        infos = scene.gt_info.get(im_id, [])
+        for gt, info in zip(gts, infos, strict=False):
+            if gt.obj_id == obj_id:
+                assert self.detector is not None, "start_scene() first"
+                det = self.detector.detect(scene.scene_id, im_id, obj_id, info, width, height)
+                return None if det is None else tuple(det["bbox"])  # type: ignore[return-value]
+        return None
+
+
+def make_box_source(
+    dataset: BopDataset, split: str, detections: Path | None, seed: int = 0
+) -> BoxSource:
+    """The box source for a run (see the module docstring); DatasetError if there is none."""
+    if detections is not None:
+        return FileBoxes(Path(detections))
+    sim = dataset.root / SIM_FILE
+    if sim.is_file():
+        return FileBoxes(sim, simulated=True)
+    has_info = any(
+        (dataset.split_path(split) / f"{s:06d}" / "scene_gt_info.json").is_file()
+        for s in dataset.scene_ids(split)
+    )
+    if not has_info:
+        raise DatasetError(
+            f"{dataset.root}: no --detections given and no scene_gt_info.json for the simulated "
+            "detector"
+        )
+    return SimulatedBoxes(seed)

@@ -1,0 +1,226 @@
+"""Likelihoods from a model bundle, batched over the particles.
+
+For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
+
+1. crop: the scale-normalised crop of each particle (chpf.crops: square centred on the
+   projection of t, side S * (D_r / z) * (f / f_r)), resized to S x S;
+2. encode: one autoencoder pass over the N crops (the classifier's observed branch reuses it
+   when the bundle's CH shares the AE encoder, else one more pass with the CH encoder);
+3. lookup: nearest codebook entry of each particle's allocentric rotation R_ray(t)^T R;
+   cosine c with that entry's AE embedding; L = max(c, 0), w = exp(-(1 - c)^2 / (2 sigma^2));
+4. head: C = p_misaligned(observed CH embedding, codebook CH embedding of the entry);
+5. depth (RGB-D): L_depth and C_depth from the codebook depth crops (chpf.tracking.depth_scores);
+   L and w are multiplied by L_depth; C is the learned C, C_depth or their mean (``c_mode``).
+
+Particles with z below ``z_min`` (behind or at the camera) get c = -1 (L = 0) and C = 1.
+"""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+
+from chpf.bundle import Bundle
+from chpf.crops import CropSpec, crop_affines, extract_crops
+from chpf.errors import ConfigError
+from chpf.geometry import allocentric_to_egocentric, egocentric_to_allocentric
+from chpf.tracking.candidates import backproject, valid_box
+from chpf.tracking.depth_scores import depth_scores
+from chpf.tracking.timing import ms_since
+from chpf.tracking.types import CodebookScores, Frame, Scores
+
+C_MODES = ("learned", "depth", "both", "none")
+
+
+def _codebook_extent(depth: np.ndarray, scale: float) -> np.ndarray:
+    """Largest side (K,) of each codebook entry's object box, in crop pixels (S)."""
+    mask = depth > 0
+    sd = depth.shape[1]
+
+    def span(occupied: np.ndarray) -> np.ndarray:  # (K, Sd) bool -> (K,) occupied extent
+        first = np.argmax(occupied, axis=1)
+        last = sd - 1 - np.argmax(occupied[:, ::-1], axis=1)
+        return np.where(occupied.any(axis=1), last - first + 1, 0)
+
+    return np.maximum(span(mask.any(axis=2)), span(mask.any(axis=1))).astype(np.float64) * scale
+
+
+class BundleLikelihood:
+    """AE likelihood L, learned C, depth L_depth / C_depth from a Bundle (see module docstring).
+
+    sigma: width of w = exp(-(1 - c)^2 / (2 sigma^2)). c_mode: "learned" | "depth" | "both" |
+    "none" (C = None). use_depth: use frame.depth when given (RGB-D). depth_margin /
+    c_depth_margin: metres. depth_no_data: L_depth and C_depth without valid depth pixels.
+    """
+
+    def __init__(
+        self,
+        bundle: Bundle,
+        sigma: float = 0.1,
+        c_mode: str = "learned",
+        use_depth: bool = False,
+        depth_margin: float = 0.03,
+        c_depth_margin: float = 0.02,
+        depth_no_data: float = 0.5,
+        z_min: float = 0.05,
+    ) -> None:
+        if c_mode not in C_MODES:
+            raise ConfigError(f"c_mode must be one of {C_MODES}, got {c_mode!r}")
+        if c_mode in ("depth", "both") and not use_depth:
+            raise ConfigError(f"c_mode {c_mode!r} needs depth (modality rgbd)")
+        if sigma <= 0:
+            raise ConfigError(f"likelihood sigma must be > 0, got {sigma}")
+        self.bundle = bundle
+        self.spec: CropSpec = bundle.spec
+        self.grid = bundle.grid
+        self.sigma = float(sigma)
+        self.c_mode = c_mode
+        self.use_depth = bool(use_depth)
+        self.depth_margin = float(depth_margin)
+        self.c_depth_margin = float(c_depth_margin)
+        self.depth_no_data = float(depth_no_data)
+        self.z_min = float(z_min)
+        self._codebook_t = np.ascontiguousarray(bundle.ae_codebook.T)  # (E,K): fast matmul
+        sd = bundle.depth_size
+        self.depth_spec = CropSpec(
+            size=sd, render_distance=self.spec.render_distance, focal=float(bundle.depth_K[0, 0])
+        )
+        # object box side per codebook entry (crop pixels), for box-scale depth estimates
+        all_depth = bundle.codebook_depth(np.arange(bundle.codebook_size))
+        self.extent_px = _codebook_extent(all_depth, self.spec.size / sd)
+        good = self.extent_px[self.extent_px > 0]
+        self.median_extent_px = float(np.median(good)) if good.size else 0.9 * self.spec.size
+
+    @property
+    def box_extent(self) -> float:
+        """Typical projected object extent in metres (box side = fx * box_extent / z)."""
+        return self.median_extent_px * self.spec.render_distance / self.spec.focal
+
+    # ------------------------------------------------------------------ pieces
+    def _crops(self, frame: Frame, t: np.ndarray) -> np.ndarray:
+        t_safe = t.copy()
+        t_safe[:, 2] = np.maximum(t_safe[:, 2], self.z_min)
+        aff = crop_affines(t_safe, np.asarray(frame.K, dtype=np.float64), self.spec)
+        return extract_crops(frame.rgb, aff, self.spec.size)
+
+    def _depth_crops(self, frame: Frame, t: np.ndarray) -> np.ndarray:
+        t_safe = t.copy()
+        t_safe[:, 2] = np.maximum(t_safe[:, 2], self.z_min)
+        aff = crop_affines(t_safe, np.asarray(frame.K, dtype=np.float64), self.depth_spec)
+        depth = np.asarray(frame.depth, dtype=np.float32)
+        return extract_crops(depth, aff, self.depth_spec.size, interpolation=cv2.INTER_NEAREST)
+
+    def _depth(self, frame: Frame, idx: np.ndarray, t: np.ndarray):
+        meas = self._depth_crops(frame, t)
+        return depth_scores(
+            meas,
+            self.bundle.codebook_depth(idx),
+            t[:, 2],
+            self.spec.render_distance,
+            self.depth_margin,
+            self.c_depth_margin,
+            self.depth_no_data,
+        )
+
+    # ------------------------------------------------------------------ Likelihood
+    def score(self, frame: Frame, R: np.ndarray, t: np.ndarray) -> Scores:
+        """Scores of N hypotheses R (N,3,3), t (N,3) metres (see module docstring)."""
+        ms: dict[str, float] = {}
+        t = np.asarray(t, dtype=np.float64)
+        t0 = time.perf_counter()
+        crops = self._crops(frame, t)
+        ms["crop"] = ms_since(t0)
+
+        t0 = time.perf_counter()
+        emb = self.bundle.embed(crops)
+        ms["encode"] = ms_since(t0)
+        need_c = self.c_mode in ("learned", "both")
+        if need_c and not self.bundle.shares_encoder:
+            t0 = time.perf_counter()
+            ch_emb = self.bundle.ch_embed(crops)
+            ms["ch_encode"] = ms_since(t0)
+        else:
+            ch_emb = emb
+
+        t0 = time.perf_counter()
+        idx = self.bundle.nearest(egocentric_to_allocentric(R, t))
+        c = self.bundle.cosine(emb, idx).astype(np.float64)
+        behind = t[:, 2] < self.z_min
+        c[behind] = -1.0
+        L = np.maximum(c, 0.0)
+        w = np.exp(-((1.0 - c) ** 2) / (2.0 * self.sigma**2))
+        ms["lookup"] = ms_since(t0)
+
+        C = None
+        if need_c:
+            t0 = time.perf_counter()
+            C = self.bundle.p_misaligned(ch_emb, idx).astype(np.float64)
+            ms["head"] = ms_since(t0)
+
+        if self.use_depth and frame.depth is not None:
+            t0 = time.perf_counter()
+            d = self._depth(frame, idx, t)
+            L = L * d.L
+            w = w * d.L
+            if self.c_mode == "depth":
+                C = d.C
+            elif self.c_mode == "both":
+                C = 0.5 * (C + d.C)
+            ms["depth"] = ms_since(t0)
+        elif self.c_mode == "depth":
+            C = np.full(t.shape[0], self.depth_no_data)  # an RGB-D run's frame without depth
+        elif self.c_mode == "both" and C is not None:
+            C = 0.5 * (C + self.depth_no_data)
+        if C is not None:
+            C = np.where(behind, 1.0, C)
+        return Scores(L=L, w=w, C=C, stage_ms=ms)
+
+    # ------------------------------------------------------------------ Rao-Blackwellised
+    def codebook_scores(self, frame: Frame, t: np.ndarray) -> CodebookScores:
+        """Cosine similarities (N,K) of the crops at t (N,3) with the whole AE codebook."""
+        ms: dict[str, float] = {}
+        t = np.asarray(t, dtype=np.float64)
+        t0 = time.perf_counter()
+        crops = self._crops(frame, t)
+        ms["crop"] = ms_since(t0)
+        t0 = time.perf_counter()
+        emb = self.bundle.embed(crops)
+        ms["encode"] = ms_since(t0)
+        t0 = time.perf_counter()
+        cos = emb @ self._codebook_t
+        cos[t[:, 2] < self.z_min] = -1.0
+        ms["lookup"] = ms_since(t0)
+        return CodebookScores(cos=cos, stage_ms=ms)
+
+    def depth_weight(self, frame: Frame, idx: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+        """L_depth (N,) of codebook entries idx (N,) at t (N,3), or None without depth."""
+        if not self.use_depth or frame.depth is None:
+            return None
+        return self._depth(frame, np.asarray(idx), np.asarray(t, dtype=np.float64)).L
+
+    # ------------------------------------------------------------------ MCL + E2E
+    def single_frame_estimate(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
+        """Pose from the detection box alone: crop at the box centre (depth guessed from the box
+        size and the codebook's median object extent), nearest codebook entry by cosine over
+        the whole codebook gives R_allo, that entry's own extent vs the box gives z; then
+        egocentric through the ray of the box centre. None without a box."""
+        box = valid_box(frame.box)
+        if box is None:
+            return None
+        K = np.asarray(frame.K, dtype=np.float64)
+        u = np.array([box[0] + 0.5 * (box[2] - 1.0)])
+        v = np.array([box[1] + 0.5 * (box[3] - 1.0)])
+        side = max(box[2], box[3])
+
+        def z_of(extent_px: float) -> float:  # depth at which that extent spans the box
+            return self.spec.render_distance * (extent_px / side) * (K[0, 0] / self.spec.focal)
+
+        t0 = backproject(u, v, np.array([z_of(self.median_extent_px)]), K)
+        cos = self.codebook_scores(frame, t0).cos[0]
+        k = int(np.argmax(cos))
+        ext = self.extent_px[k] if self.extent_px[k] > 0 else self.median_extent_px
+        t = backproject(u, v, np.array([z_of(ext)]), K)[0]
+        R = allocentric_to_egocentric(self.grid.rotations[k], t)
+        return R, t

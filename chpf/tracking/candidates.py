@@ -1,0 +1,107 @@
+"""The candidate distribution phi_cand: where reinvigorated particles come from.
+
+Orientations are uniform on SO(3); the projection (u, v) of the translation is uniform in the
+2D detection box; the depth z is
+
+- RGB: uniform in ``z_range`` metres, or, when ``box_extent`` (the object's typical projected
+  extent in metres) is known, uniform in ``z_box_factors`` times the depth at which the object
+  would fill the box: z_box = fx * box_extent / max(w, h);
+- RGB-D: the measured depth at (u, v) plus a uniform offset in ``depth_offset`` (the surface is
+  in front of the centre). Holes: the median of the valid depths in a small window around
+  (u, v), else of the valid depths in the whole box, else the RGB rule.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from chpf.geometry import random_rotations
+from chpf.tracking.types import Box, Frame
+
+
+def valid_box(box: Box | None) -> Box | None:
+    """The box as 4 floats if finite with positive width and height, else None."""
+    if box is None:
+        return None
+    b = np.asarray(box, dtype=np.float64).reshape(-1)
+    if b.shape[0] != 4 or not np.all(np.isfinite(b)) or b[2] <= 0 or b[3] <= 0:
+        return None
+    return (float(b[0]), float(b[1]), float(b[2]), float(b[3]))
+
+
+def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Camera-frame points (n,3) at pixels (u, v) (n,) and depths z (n,) metres."""
+    x = (u - K[0, 2]) / K[0, 0] * z
+    y = (v - K[1, 2]) / K[1, 1] * z
+    return np.stack([x, y, z], axis=-1)
+
+
+def _median_valid(values: np.ndarray) -> np.ndarray:
+    """Row-wise median of the positive entries of (n, m); nan where a row has none."""
+    vals = np.where(values > 0, values, np.nan)
+    out = np.full(values.shape[0], np.nan)
+    has = np.any(values > 0, axis=1)
+    if np.any(has):
+        out[has] = np.nanmedian(vals[has], axis=1)
+    return out
+
+
+@dataclass
+class CandidateSampler:
+    """phi_cand for one object (see the module docstring); all lengths in metres."""
+
+    z_range: tuple[float, float] = (0.3, 2.0)
+    box_extent: float | None = None
+    z_box_factors: tuple[float, float] = (0.75, 1.35)
+    depth_offset: tuple[float, float] = (0.0, 0.05)
+    depth_window: int = 3
+    use_depth: bool = True
+
+    def _z_rgb(self, n: int, box: Box, K: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        if self.box_extent is not None and self.box_extent > 0:
+            z_box = K[0, 0] * self.box_extent / max(box[2], box[3])
+            lo, hi = self.z_box_factors[0] * z_box, self.z_box_factors[1] * z_box
+        else:
+            lo, hi = self.z_range
+        return rng.uniform(lo, hi, n)
+
+    def _z_depth(self, u: np.ndarray, v: np.ndarray, box: Box, depth: np.ndarray) -> np.ndarray:
+        """Measured depth (n,) at (u, v), robust to holes (nan where nothing valid at all)."""
+        h, w = depth.shape
+        r = int(self.depth_window)
+        offs = np.arange(-r, r + 1)
+        ui = np.clip(np.rint(u).astype(np.int64)[:, None, None] + offs[None, None, :], 0, w - 1)
+        vi = np.clip(np.rint(v).astype(np.int64)[:, None, None] + offs[None, :, None], 0, h - 1)
+        patch = depth[vi, ui].reshape(u.shape[0], -1)
+        centre = depth[np.clip(np.rint(v).astype(np.int64), 0, h - 1),
+                       np.clip(np.rint(u).astype(np.int64), 0, w - 1)]  # fmt: skip
+        z = np.where(centre > 0, centre, _median_valid(patch))
+        if np.any(np.isnan(z)):
+            x0, y0 = max(int(np.floor(box[0])), 0), max(int(np.floor(box[1])), 0)
+            x1, y1 = min(int(np.ceil(box[0] + box[2])), w), min(int(np.ceil(box[1] + box[3])), h)
+            region = depth[y0:y1, x0:x1] if (x1 > x0 and y1 > y0) else np.zeros(0)
+            good = region[region > 0]
+            z = np.where(np.isnan(z), np.median(good) if good.size else np.nan, z)
+        return z
+
+    def sample(
+        self, n: int, frame: Frame, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """n poses (R (n,3,3), t (n,3)) from phi_cand; frame.box must be a valid box."""
+        box = valid_box(frame.box)
+        if box is None:
+            raise ValueError("CandidateSampler.sample needs a frame with a valid box")
+        K = np.asarray(frame.K, dtype=np.float64)
+        R = random_rotations(n, rng)
+        u = box[0] + rng.random(n) * box[2]
+        v = box[1] + rng.random(n) * box[3]
+        z_rgb = self._z_rgb(n, box, K, rng)
+        if self.use_depth and frame.depth is not None:
+            z_meas = self._z_depth(u, v, box, np.asarray(frame.depth))
+            offset = rng.uniform(self.depth_offset[0], self.depth_offset[1], n)
+            z = np.where(np.isnan(z_meas), z_rgb, z_meas + offset)
+        else:
+            z = z_rgb
+        return R, backproject(u, v, z, K)

@@ -1,0 +1,215 @@
+"""PoseRBPF and PoseRBPF++: Rao-Blackwellised particle filters (Deng et al., RSS 2019).
+
+The particles are translations t (N,3) metres; each carries a probability vector (K,) over
+the codebook's allocentric orientations. Per frame with a box:
+
+- predict: random walk on t; each orientation distribution is diffused over the grid with a
+  precomputed sparse neighbour matrix (the rotation prior);
+- weigh: cosine similarities c (N,K) of each particle's crop embedding with the whole
+  codebook; orientation likelihood exp(-(1 - c)^2 / (2 sigma^2)); posterior = likelihood x
+  prior (normalised per particle); particle weight = sum_k likelihood x prior (times a depth
+  factor for RGB-D, when the likelihood gives one);
+- estimate: weighted mean translation; orientation = the grid entry at the argmax of the
+  weighted mixture of the particles' distributions (or the quaternion mean of the entries
+  around it, ``rotation_estimate="mean"``), allocentric -> egocentric at the estimated t;
+- resample: systematic; PoseRBPF++ draws ``reinvigorate`` (0.5) of the particles from phi_cand
+  (uniform orientation distribution) every frame; both reset all particles from phi_cand when
+  the best similarity of the frame drops below ``reset_threshold``.
+
+Recorded: L_i = max(max_k c_ik, 0) (sum_L), alpha = fraction of particles drawn from phi_cand.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from chpf.geometry import (
+    RotationGrid,
+    allocentric_to_egocentric,
+    average_quaternions,
+    geodesic_angle,
+    quat_to_matrix,
+)
+from chpf.tracking.candidates import CandidateSampler, valid_box
+from chpf.tracking.motion import RandomWalk
+from chpf.tracking.resampling import effective_sample_size, normalise_weights, systematic_resample
+from chpf.tracking.rotation_diffusion import grid_spacing, neighbour_matrix
+from chpf.tracking.timing import add_ms, ms_since
+from chpf.tracking.types import CodebookLikelihood, Frame, TrackResult
+from chpf.tracking.warn import CollapseWarner
+
+_NAN = float("nan")
+
+
+class RaoBlackwellisedFilter:
+    """PoseRBPF (``reinvigorate=0``) / PoseRBPF++ (``reinvigorate=0.5``); see module docstring.
+
+    sigma: width of the cosine-to-likelihood map. rotation_sigma: rad, Gaussian kernel of the
+    rotation prior (None = the grid spacing); n_neighbours: grid neighbours per entry.
+    reset_threshold: best cosine similarity below which every particle is redrawn.
+    """
+
+    def __init__(
+        self,
+        likelihood: CodebookLikelihood,
+        n_particles: int = 50,
+        motion: RandomWalk | None = None,
+        candidates: CandidateSampler | None = None,
+        rng: np.random.Generator | None = None,
+        sigma: float = 0.1,
+        rotation_sigma: float | None = None,
+        n_neighbours: int = 12,
+        reset_threshold: float = 0.4,
+        reinvigorate: float = 0.0,
+        rotation_estimate: str = "argmax",
+        name: str = "poserbpf",
+    ) -> None:
+        if rotation_estimate not in ("argmax", "mean"):
+            raise ValueError(f"rotation_estimate: 'argmax' or 'mean', got {rotation_estimate!r}")
+        self.likelihood = likelihood
+        self.grid: RotationGrid = likelihood.grid  # type: ignore[assignment]
+        self.n = int(n_particles)
+        self.k = len(self.grid)
+        self.motion = motion or RandomWalk()
+        self.candidates = candidates or CandidateSampler()
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.sigma = float(sigma)
+        self.reset_threshold = float(reset_threshold)
+        self.reinvigorate = float(reinvigorate)
+        self.rotation_estimate = rotation_estimate
+        self.name = name
+        rot_sigma = rotation_sigma if rotation_sigma is not None else grid_spacing(self.grid)
+        # float32 throughout the (N,K) arrays: K is ~20k, these dominate the filter's time
+        self.diffusion = neighbour_matrix(self.grid, n_neighbours, rot_sigma).astype(np.float32)
+        self._mean_radius = 2.0 * rot_sigma
+        self.warner = CollapseWarner(f"RaoBlackwellisedFilter[{name}]")
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the particles and the estimate."""
+        self.t: np.ndarray | None = None
+        self.P: np.ndarray | None = None  # (N, K) orientation distributions
+        self.weights = np.full(self.n, 1.0 / self.n)
+        self.estimate: tuple[np.ndarray, np.ndarray] | None = None
+        self.n_resets = 0
+
+    def set_particles(self, t: np.ndarray, P: np.ndarray | None = None) -> None:
+        """Replace the translation particles (N,3) and their distributions (N,K) (None: uniform)."""
+        self.t = np.array(t, dtype=np.float64).reshape(self.n, 3)
+        self.P = (
+            np.full((self.n, self.k), 1.0 / self.k, np.float32)
+            if P is None
+            else np.array(P, dtype=np.float32).reshape(self.n, self.k)
+        )
+        self.weights = np.full(self.n, 1.0 / self.n)
+
+    def _result(
+        self, alpha: float, sum_l: float, ess: float, stage_ms: dict[str, float], weighed: bool
+    ) -> TrackResult:
+        est = self.estimate
+        return TrackResult(
+            R=None if est is None else est[0].copy(),
+            t=None if est is None else est[1].copy(),
+            alpha=float(alpha),
+            sum_L=float(sum_l),
+            sum_C=_NAN,
+            ess=float(ess),
+            stage_ms=stage_ms,
+            ok=est is not None,
+            weighed=weighed,
+        )
+
+    def _rotation(self, p: np.ndarray) -> np.ndarray:
+        """Allocentric rotation (3,3) from a distribution p (K,) over the grid."""
+        k_best = int(np.argmax(p))
+        if self.rotation_estimate == "argmax":
+            return self.grid.rotations[k_best]
+        near = geodesic_angle(self.grid.rotations[k_best], self.grid.rotations) < self._mean_radius
+        return quat_to_matrix(average_quaternions(self.grid.quats[near], p[near]))
+
+    def step(self, frame: Frame) -> TrackResult:
+        """Process one frame (see module docstring)."""
+        t_start = time.perf_counter()
+        stage_ms: dict[str, float] = {}
+        box = valid_box(frame.box)
+        t0 = time.perf_counter()
+        if self.t is None or self.P is None:
+            if box is None:
+                return self._result(_NAN, _NAN, _NAN, {"total": ms_since(t_start)}, False)
+            self.set_particles(self.candidates.sample(self.n, frame, self.rng)[1])
+            stage_ms["init"] = ms_since(t0)
+        else:
+            self.t = self.motion.predict_translation(self.t, self.rng)
+            self.P = np.asarray(self.P @ self.diffusion)
+            stage_ms["predict"] = ms_since(t0)
+            if box is None:
+                stage_ms["total"] = ms_since(t_start)
+                return self._result(_NAN, _NAN, _NAN, stage_ms, False)
+        assert self.t is not None and self.P is not None
+
+        t0 = time.perf_counter()
+        cs = self.likelihood.codebook_scores(frame, self.t)
+        stage_ms["likelihood"] = ms_since(t0)
+        add_ms(stage_ms, cs.stage_ms)
+
+        t0 = time.perf_counter()
+        cos = np.asarray(cs.cos, dtype=np.float32)
+        if np.isnan(cos).any():  # (np.nan_to_num on every frame costs more than all the rest)
+            cos = np.where(np.isnan(cos), np.float32(-1.0), cos)
+        post = 1.0 - cos  # in place below: exp(-(1 - c)^2 / (2 sigma^2)) * prior
+        post *= post
+        post *= np.float32(-0.5 / self.sigma**2)
+        np.exp(post, out=post)
+        post *= self.P
+        row = post.sum(axis=1).astype(np.float64)  # sum_k likelihood x prior
+        wi = row.copy()
+        if frame.depth is not None:
+            dw = self.likelihood.depth_weight(frame, np.argmax(post, axis=1), self.t)
+            if dw is not None:
+                wi *= np.asarray(dw, dtype=np.float64)
+        empty = row <= 0
+        post /= np.where(empty, 1.0, row).astype(np.float32)[:, None]
+        post[empty] = 1.0 / self.k
+        best = cos.max(axis=1)
+        best_sim = float(best.max()) if best.size else -1.0
+        sum_l = float(np.clip(best, 0.0, None).sum())
+        w = normalise_weights(wi)
+        stage_ms["weigh"] = ms_since(t0)
+
+        t0 = time.perf_counter()
+        if w is None:
+            self.warner.collapse()
+            ess = 0.0
+            if self.estimate is None:
+                w_est = np.full(self.n, 1.0 / self.n)
+        else:
+            ess = effective_sample_size(w)
+            w_est = w
+        if w is not None or self.estimate is None:
+            t_est = w_est @ self.t
+            R_allo = self._rotation(w_est.astype(np.float32) @ post)
+            self.estimate = (allocentric_to_egocentric(R_allo, t_est), t_est)
+        stage_ms["estimate"] = ms_since(t0)
+
+        t0 = time.perf_counter()
+        reset = w is None or best_sim < self.reset_threshold
+        if reset:
+            self.n_resets += 1
+        alpha = 1.0 if reset else self.reinvigorate
+        n_cand = self.n if reset else round(alpha * self.n)
+        parts_t, parts_p = [], []
+        if self.n - n_cand > 0:
+            idx = systematic_resample(w, self.n - n_cand, self.rng)
+            parts_t.append(self.t[idx])
+            parts_p.append(post[idx])
+        if n_cand > 0:
+            parts_t.append(self.candidates.sample(n_cand, frame, self.rng)[1])
+            parts_p.append(np.full((n_cand, self.k), 1.0 / self.k, np.float32))
+        self.t = np.concatenate(parts_t)
+        self.P = np.concatenate(parts_p)
+        self.weights = np.full(self.n, 1.0 / self.n)
+        stage_ms["resample"] = ms_since(t0)
+        stage_ms["total"] = ms_since(t_start)
+        return self._result(alpha, sum_l, ess, stage_ms, True)

@@ -1,0 +1,191 @@
+"""Reinvigoration strategies of the 6D particle filter: each decides alpha, the fraction of
+particles drawn from the candidate distribution at a frame's resampling.
+
+Every strategy has ``alpha(scores) -> float`` in [0, 1] and ``reset()`` (forget its state at
+the start of a sequence). Two attributes let a strategy change the core's loop without a
+special filter class: ``betas`` (annealing layers, one weighing per entry; the default (1.0,)
+is one ordinary weighing) with ``layer_decay`` (diffusion scale factor per layer), and
+``propose(frame, n, rng, likelihood)`` (where reinvigorated particles come from; None means
+phi_cand).
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from chpf.errors import ConfigError
+from chpf.geometry import perturb_rotations
+from chpf.tracking.types import Frame, Scores, SingleFrameEstimator
+
+
+def _finite(x: np.ndarray) -> np.ndarray:
+    """Float64 copy with NaN/inf replaced by 0."""
+    return np.nan_to_num(np.asarray(x, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+
+
+class Strategy:
+    """Base strategy: no reinvigoration, one weighing per frame, candidates from phi_cand."""
+
+    name = "none"
+    betas: tuple[float, ...] = (1.0,)
+    layer_decay: float = 1.0
+
+    def alpha(self, scores: Scores) -> float:
+        """Reinvigoration rate for this frame's resampling."""
+        return 0.0
+
+    def reset(self) -> None:
+        """Forget any state (start of a new sequence)."""
+
+    def propose(
+        self, frame: Frame, n: int, rng: np.random.Generator, likelihood: object
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """n reinvigorated poses (R (n,3,3), t (n,3)), or None to use phi_cand."""
+        return None
+
+
+class NoReinvigoration(Strategy):
+    """alpha = 0: a plain SIR particle filter."""
+
+    name = "none"
+
+
+class FixedRate(Strategy):
+    """alpha = a constant fraction."""
+
+    name = "fixed"
+
+    def __init__(self, rate: float = 0.1) -> None:
+        if not 0.0 <= rate <= 1.0:
+            raise ConfigError(f"fixed reinvigoration rate must be in [0, 1], got {rate}")
+        self.rate = float(rate)
+
+    def alpha(self, scores: Scores) -> float:
+        return self.rate
+
+
+class CHPF(Strategy):
+    """Counter-Hypothetical PF: alpha = sum C / (sum C + sum L).
+
+    When both sums are 0 (no evidence for nor against any particle) alpha = 1.
+    """
+
+    name = "chpf"
+
+    def alpha(self, scores: Scores) -> float:
+        if scores.C is None:
+            raise ConfigError("CH-PF needs a Counter-Hypothetical likelihood C (none was given)")
+        sum_c = float(_finite(scores.C).clip(min=0.0).sum())
+        sum_l = float(_finite(scores.L).clip(min=0.0).sum())
+        total = sum_c + sum_l
+        return 1.0 if total <= 0.0 else sum_c / total
+
+
+class SRL(Strategy):
+    """Sensor Resetting Localisation: alpha = clip(1 - mean(L) / beta, 0, 1).
+
+    beta: the unnormalised likelihood (minimum cosine similarity) regarded as "good".
+    """
+
+    name = "srl"
+
+    def __init__(self, beta: float = 0.6) -> None:
+        if beta <= 0.0:
+            raise ConfigError(f"SRL beta must be > 0, got {beta}")
+        self.beta = float(beta)
+
+    def alpha(self, scores: Scores) -> float:
+        mean_l = float(_finite(scores.L).mean()) if np.size(scores.L) else 0.0
+        return float(np.clip(1.0 - mean_l / self.beta, 0.0, 1.0))
+
+
+class AugMCL(Strategy):
+    """Augmented MCL: w_avg = mean(L); w_slow += a_slow (w_avg - w_slow);
+    w_fast += a_fast (w_avg - w_fast); alpha = max(0, 1 - w_fast / w_slow).
+
+    Both averages start at the first frame's w_avg (so alpha = 0 on the first frame).
+    """
+
+    name = "augmcl"
+
+    def __init__(self, a_slow: float = 0.001, a_fast: float = 0.1) -> None:
+        if not 0.0 < a_slow < a_fast <= 1.0:
+            raise ConfigError(f"Aug. MCL needs 0 < a_slow < a_fast <= 1, got {a_slow}, {a_fast}")
+        self.a_slow = float(a_slow)
+        self.a_fast = float(a_fast)
+        self.w_slow: float | None = None
+        self.w_fast: float | None = None
+
+    def reset(self) -> None:
+        self.w_slow = None
+        self.w_fast = None
+
+    def alpha(self, scores: Scores) -> float:
+        w_avg = float(_finite(scores.L).mean()) if np.size(scores.L) else 0.0
+        if self.w_slow is None or self.w_fast is None:
+            self.w_slow = self.w_fast = w_avg
+        else:
+            self.w_slow += self.a_slow * (w_avg - self.w_slow)
+            self.w_fast += self.a_fast * (w_avg - self.w_fast)
+        if self.w_slow <= 0.0:
+            return 1.0 if self.w_fast <= 0.0 else 0.0
+        return float(max(0.0, 1.0 - self.w_fast / self.w_slow))
+
+
+class Annealing(Strategy):
+    """Annealed particle filter (no reinvigoration): M layers per frame; layer m weighs with
+    w ** betas[m] (betas rising to 1), resamples, and diffuses with the motion model scaled by
+    layer_decay ** (m + 1) before the next layer."""
+
+    name = "annealing"
+
+    def __init__(self, betas: tuple[float, ...] = (0.2, 0.5, 1.0), layer_decay: float = 0.5):
+        betas = tuple(float(b) for b in betas)
+        if not betas or betas[-1] != 1.0 or any(b <= 0 for b in betas):
+            raise ConfigError(f"annealing betas must be positive and end at 1.0, got {betas}")
+        if any(b2 < b1 for b1, b2 in itertools.pairwise(betas)):
+            raise ConfigError(f"annealing betas must rise, got {betas}")
+        if not 0.0 < layer_decay <= 1.0:
+            raise ConfigError(f"annealing layer_decay must be in (0, 1], got {layer_decay}")
+        self.betas = betas
+        self.layer_decay = float(layer_decay)
+
+
+class E2E(Strategy):
+    """MCL + E2E: a fixed fraction of particles drawn from a Gaussian around a single-frame
+    estimate (the likelihood's ``single_frame_estimate``); phi_cand when it gives none.
+
+    sigma_t: translation std (x, y, z) metres; sigma_r: rotation std (axis-angle) radians.
+    """
+
+    name = "e2e"
+
+    def __init__(
+        self,
+        rate: float = 0.2,
+        sigma_t: tuple[float, float, float] = (0.01, 0.01, 0.03),
+        sigma_r: float = 0.15,
+    ) -> None:
+        if not 0.0 <= rate <= 1.0:
+            raise ConfigError(f"E2E rate must be in [0, 1], got {rate}")
+        self.rate = float(rate)
+        self.sigma_t = np.broadcast_to(np.asarray(sigma_t, dtype=np.float64), (3,)).copy()
+        self.sigma_r = float(sigma_r)
+
+    def alpha(self, scores: Scores) -> float:
+        return self.rate
+
+    def propose(
+        self, frame: Frame, n: int, rng: np.random.Generator, likelihood: object
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        if n <= 0 or not isinstance(likelihood, SingleFrameEstimator):
+            return None
+        est = likelihood.single_frame_estimate(frame)
+        if est is None:
+            return None
+        R0, t0 = (np.asarray(a, dtype=np.float64) for a in est)
+        R = perturb_rotations(np.broadcast_to(R0, (n, 3, 3)), self.sigma_r, rng)
+        t = t0[None, :] + rng.standard_normal((n, 3)) * self.sigma_t
+        return R, t

@@ -1,0 +1,102 @@
+"""Data types shared by the likelihoods and the filters: frames, scores, per-frame results."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+Box = tuple[float, float, float, float]
+"""A 2D detection box (x, y, w, h) in pixels (x, y = top-left corner)."""
+
+
+@dataclass
+class Frame:
+    """One camera frame: rgb (H,W,3) uint8, depth (H,W) float32 m (0 = missing) or None,
+    K (3,3) OpenCV intrinsics, box (x, y, w, h) pixels of the object's detection or None."""
+
+    rgb: np.ndarray
+    depth: np.ndarray | None
+    K: np.ndarray
+    box: Box | None = None
+
+
+@dataclass
+class Scores:
+    """What a likelihood returns for N pose hypotheses of one frame.
+
+    L: (N,) unnormalised likelihood in [0, 1] (used by SRL, Aug. MCL, CH-PF).
+    w: (N,) importance weights (>= 0, not normalised).
+    C: (N,) Counter-Hypothetical likelihood in [0, 1] (probability of misalignment) or None.
+    stage_ms: milliseconds spent per stage (e.g. "crop", "encode", "head").
+    """
+
+    L: np.ndarray
+    w: np.ndarray
+    C: np.ndarray | None = None
+    stage_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class CodebookScores:
+    """Similarities of N translation hypotheses with the whole orientation codebook.
+
+    cos: (N, K) cosine similarity of the observed crop at each translation with every codebook
+    entry (allocentric orientations of ``grid``). stage_ms as in Scores.
+    """
+
+    cos: np.ndarray
+    stage_ms: dict[str, float] = field(default_factory=dict)
+
+
+@runtime_checkable
+class Likelihood(Protocol):
+    """Scores N 6D pose hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame."""
+
+    def score(self, frame: Frame, R: np.ndarray, t: np.ndarray) -> Scores: ...
+
+
+@runtime_checkable
+class SingleFrameEstimator(Protocol):
+    """Gives a pose from one frame alone (for MCL + E2E), or None if it cannot."""
+
+    def single_frame_estimate(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None: ...
+
+
+@runtime_checkable
+class CodebookLikelihood(Protocol):
+    """What the Rao-Blackwellised filters need: similarities with a whole orientation codebook.
+
+    ``grid`` is the RotationGrid of allocentric codebook orientations (K entries).
+    ``depth_weight`` (RGB-D) returns a per-particle factor (N,) in [0, 1] for the codebook
+    entries ``idx`` (N,) placed at translations t (N,3), or None without depth.
+    """
+
+    grid: object
+
+    def codebook_scores(self, frame: Frame, t: np.ndarray) -> CodebookScores: ...
+
+    def depth_weight(self, frame: Frame, idx: np.ndarray, t: np.ndarray) -> np.ndarray | None: ...
+
+
+@dataclass
+class TrackResult:
+    """The filter's output for one frame.
+
+    R (3,3), t (3,) metres: the pose estimate (object to camera), None before the first
+    detection. alpha: reinvigoration rate used for this frame's resampling (nan if none).
+    sum_L, sum_C: sums of the likelihoods over the particles (nan when not computed).
+    ess: effective sample size of the normalised weights (nan if not weighed).
+    stage_ms: milliseconds per stage. ok: an estimate exists. weighed: this frame was scored.
+    """
+
+    R: np.ndarray | None
+    t: np.ndarray | None
+    alpha: float
+    sum_L: float
+    sum_C: float
+    ess: float
+    stage_ms: dict[str, float]
+    ok: bool
+    weighed: bool = False

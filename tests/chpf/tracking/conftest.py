@@ -1,0 +1,250 @@
+"""Shared fixtures for the tracking tests: a synthetic moving pose and its detection boxes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from chpf.geometry import axis_angle_to_matrix, project_points
+
+K_CAM = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
+OBJ_SIZE = 0.15  # metres, extent used for the synthetic boxes
+
+
+@dataclass
+class SyntheticSequence:
+    """Ground-truth poses (T,3,3), (T,3) of a slowly moving, rotating object and its boxes."""
+
+    R: np.ndarray
+    t: np.ndarray
+    K: np.ndarray
+    rgb: np.ndarray
+
+    def box(self, i: int) -> tuple[float, float, float, float]:
+        u, v = project_points(self.t[i], self.K)
+        s = self.K[0, 0] * OBJ_SIZE / self.t[i, 2]
+        return (float(u - s / 2), float(v - s / 2), float(s), float(s))
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+def make_sequence(n: int = 60) -> SyntheticSequence:
+    i = np.arange(n, dtype=np.float64)
+    aa = np.stack([np.full(n, 0.3), 0.02 * i, np.full(n, 0.1)], axis=-1)
+    t = np.stack([0.05 + 0.002 * i, np.full(n, -0.02), 0.8 + 0.001 * i], axis=-1)
+    rgb = np.zeros((480, 640, 3), np.uint8)
+    return SyntheticSequence(axis_angle_to_matrix(aa), t, K_CAM.copy(), rgb)
+
+
+@pytest.fixture
+def sequence() -> SyntheticSequence:
+    return make_sequence()
+
+
+# ----------------------------------------------------------------------------------------------
+# A "template" model bundle: no training, real geometry. The encoder is ONNX built with
+# onnx.helper: average-pool the crop 2x2, subtract its mean, L2-normalise (so the cosine is a
+# normalised cross-correlation of the crop with a rendered codebook view); the classifier head is
+# p_misaligned = sigmoid(HEAD_A * (HEAD_B - <obs, cand>)). The codebook is rendered with
+# chpf.crops.render_crops. It makes a weak but real likelihood to test the runtime end to end.
+
+TB_OBJECT = "box"
+TB_SIZE = 32
+TB_CODEBOOK = 512
+HEAD_A, HEAD_B = 12.0, 0.6
+SEQ_K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
+SEQ_W, SEQ_H = 320, 240
+
+
+def _template_encoder(size: int) -> bytes:
+    from onnx import TensorProto, helper, numpy_helper
+
+    e = 3 * (size // 2) ** 2
+    nodes = [
+        helper.make_node("Cast", ["crops"], ["f"], to=TensorProto.FLOAT),
+        helper.make_node("Transpose", ["f"], ["chw"], perm=[0, 3, 1, 2]),
+        helper.make_node("AveragePool", ["chw"], ["p"], kernel_shape=[2, 2], strides=[2, 2]),
+        helper.make_node("Reshape", ["p", "shape"], ["flat"]),
+        helper.make_node("ReduceMean", ["flat"], ["mean"], axes=[1], keepdims=1),
+        helper.make_node("Sub", ["flat", "mean"], ["centred"]),
+        helper.make_node("LpNormalization", ["centred"], ["embedding"], axis=1, p=2),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "template_encoder",
+        [helper.make_tensor_value_info("crops", TensorProto.UINT8, ["batch", size, size, 3])],
+        [helper.make_tensor_value_info("embedding", TensorProto.FLOAT, ["batch", e])],
+        [numpy_helper.from_array(np.array([-1, e], np.int64), "shape")],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    return model.SerializeToString()
+
+
+def _template_head(e: int) -> bytes:
+    from onnx import TensorProto, helper, numpy_helper
+
+    nodes = [
+        helper.make_node("Mul", ["obs", "cand"], ["m"]),
+        helper.make_node("ReduceSum", ["m", "axes"], ["d"], keepdims=0),
+        helper.make_node("Sub", ["b", "d"], ["x"]),
+        helper.make_node("Mul", ["x", "a"], ["logit"]),
+        helper.make_node("Sigmoid", ["logit"], ["p_misaligned"]),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "template_head",
+        [
+            helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", e]),
+            helper.make_tensor_value_info("cand", TensorProto.FLOAT, ["batch", e]),
+        ],
+        [helper.make_tensor_value_info("p_misaligned", TensorProto.FLOAT, ["batch"])],
+        [
+            numpy_helper.from_array(np.array([1], np.int64), "axes"),
+            numpy_helper.from_array(np.array(HEAD_A, np.float32), "a"),
+            numpy_helper.from_array(np.array(HEAD_B, np.float32), "b"),
+        ],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    return model.SerializeToString()
+
+
+_VIEWS: dict = {}
+
+
+def write_template_bundle(root, shared: bool = True, size: int = TB_SIZE, k: int = TB_CODEBOOK):
+    """Write a template bundle of the built-in TB_OBJECT into folder ``root``; returns root."""
+    import hashlib
+    import json
+
+    import onnxruntime as ort
+
+    from chpf.bundle import FORMAT_VERSION
+    from chpf.crops import CropSpec, render_crops
+    from chpf.geometry import RotationGrid
+    from chpf.objects import get_object, object_fingerprint
+    from export.codebook import downsample_depth
+
+    root.mkdir(parents=True, exist_ok=True)
+    obj = get_object(TB_OBJECT)
+    spec = CropSpec.for_object(obj.diameter, size=size)
+    grid = RotationGrid.uniform(k)
+    key = (size, k)
+    if key not in _VIEWS:  # render once per session for both bundles
+        _VIEWS[key] = render_crops(None, obj, grid.rotations, spec)
+    views = _VIEWS[key]
+    enc = _template_encoder(size)
+    sess = ort.InferenceSession(enc, providers=["CPUExecutionProvider"])
+    emb = sess.run(None, {"crops": views.rgb})[0].astype(np.float32)
+    e = emb.shape[1]
+    files = {"ae_encoder.onnx": enc, "ch_head.onnx": _template_head(e)}
+    if not shared:
+        files["ch_encoder.onnx"] = enc
+    for name, data in files.items():
+        (root / name).write_bytes(data)
+    np.savez(
+        root / "codebook.npz",
+        rotations=grid.rotations.astype(np.float32),
+        ae_embeddings=emb,
+        ch_embeddings=emb,
+        depth=downsample_depth(views.depth, 2).astype(np.float16),
+    )
+    names = [*files, "codebook.npz"]
+    manifest = {
+        "format_version": FORMAT_VERSION,
+        "object": {
+            "name": obj.name,
+            "obj_id": obj.obj_id,
+            "diameter": obj.diameter,
+            "symmetries_discrete": [],
+            "symmetries_continuous": [],
+            "fingerprint": object_fingerprint(obj),
+        },
+        "crop": spec.to_dict(),
+        "embedding_dim": e,
+        "codebook_size": k,
+        "ch_shares_ae_encoder": shared,
+        "files": {
+            "ae_encoder": "ae_encoder.onnx",
+            "ch_obs_encoder": None if shared else "ch_encoder.onnx",
+            "ch_head": "ch_head.onnx",
+            "codebook": "codebook.npz",
+        },
+        "sha256": {n: hashlib.sha256((root / n).read_bytes()).hexdigest() for n in names},
+        "training": {"note": "template bundle for tests (no training)"},
+        "created_by": "tests/chpf/tracking/conftest.py",
+    }
+    (root / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    return root
+
+
+@pytest.fixture(scope="session")
+def template_bundle(tmp_path_factory):
+    """Path of a template bundle whose CH shares the AE encoder."""
+    pytest.importorskip("onnx")
+    return write_template_bundle(tmp_path_factory.mktemp("bundles") / "shared", shared=True)
+
+
+@pytest.fixture(scope="session")
+def template_bundle_split(tmp_path_factory):
+    """Path of a template bundle with a separate CH observed-branch encoder."""
+    pytest.importorskip("onnx")
+    return write_template_bundle(tmp_path_factory.mktemp("bundles") / "split", shared=False)
+
+
+@dataclass
+class RenderedSequence:
+    """Rendered frames of TB_OBJECT moving slowly: rgb (T,H,W,3), depth (T,H,W), masks, poses."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    mask: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    K: np.ndarray
+
+    def box(self, i: int) -> tuple[float, float, float, float] | None:
+        ys, xs = np.nonzero(self.mask[i])
+        if xs.size == 0:
+            return None
+        x0, y0 = float(xs.min()), float(ys.min())
+        return (x0, y0, float(xs.max()) - x0 + 1.0, float(ys.max()) - y0 + 1.0)
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+def render_sequence(n: int = 24, name: str = TB_OBJECT, z: float = 0.55) -> RenderedSequence:
+    """n frames of built-in object ``name`` at about ``z`` metres, moving and turning slowly."""
+    from chpf.objects import get_object
+    from chpf.render import Renderer
+
+    obj = get_object(name)
+    i = np.arange(n, dtype=np.float64)
+    aa = np.stack([0.6 + 0.02 * i, 0.4 - 0.015 * i, 0.2 + 0.01 * i], axis=-1)
+    R = axis_angle_to_matrix(aa)
+    s = z / 0.55  # the box's path, scaled with the distance
+    t = np.stack([s * (-0.03 + 0.003 * i), s * (0.02 - 0.001 * i), z + s * 0.002 * i], axis=-1)
+    rgb = np.zeros((n, SEQ_H, SEQ_W, 3), np.uint8)
+    depth = np.zeros((n, SEQ_H, SEQ_W), np.float32)
+    mask = np.zeros((n, SEQ_H, SEQ_W), bool)
+    with Renderer(SEQ_W, SEQ_H) as r:
+        for k in range(n):
+            out = r.render([(obj, R[k], t[k])], SEQ_K)
+            rgb[k], depth[k], mask[k] = out.rgb, out.depth, out.masks[0]
+    return RenderedSequence(rgb, depth, mask, R, t, SEQ_K.copy())
+
+
+@pytest.fixture(scope="session")
+def rendered_sequence() -> RenderedSequence:
+    return render_sequence()
+
+
+@pytest.fixture
+def sequence_renderer():
+    """render_sequence(n, name, z) for tests that need another object or length."""
+    return render_sequence

@@ -1,0 +1,79 @@
+"""The candidate distribution phi_cand: boxes, depth ranges, depth holes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from chpf.geometry import project_points
+from chpf.tracking.candidates import CandidateSampler, valid_box
+from chpf.tracking.types import Frame
+
+K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
+RGB = np.zeros((480, 640, 3), np.uint8)
+BOX = (100.0, 50.0, 80.0, 60.0)
+
+
+def in_box(uv, box, tol=1e-6):
+    return (
+        (uv[:, 0] >= box[0] - tol)
+        & (uv[:, 0] <= box[0] + box[2] + tol)
+        & (uv[:, 1] >= box[1] - tol)
+        & (uv[:, 1] <= box[1] + box[3] + tol)
+    )
+
+
+def test_rgb_candidates_project_into_the_box_with_z_in_range():
+    R, t = CandidateSampler(z_range=(0.5, 1.5)).sample(
+        2000, Frame(RGB, None, K, BOX), np.random.default_rng(0)
+    )
+    assert R.shape == (2000, 3, 3) and t.shape == (2000, 3)
+    eye = np.broadcast_to(np.eye(3), R.shape)
+    np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), eye, atol=1e-9)
+    assert np.all(in_box(project_points(t, K), BOX))
+    assert t[:, 2].min() >= 0.5 and t[:, 2].max() <= 1.5 and np.ptp(t[:, 2]) > 0.9
+    # orientations are uniform: the mean rotation matrix is close to 0
+    assert np.abs(R.mean(axis=0)).max() < 0.06
+
+
+def test_rgb_z_from_the_box_scale():
+    s = CandidateSampler(box_extent=0.1, z_box_factors=(0.9, 1.1))
+    _, t = s.sample(500, Frame(RGB, None, K, BOX), np.random.default_rng(0))
+    z_box = 500 * 0.1 / 80.0
+    assert t[:, 2].min() >= 0.9 * z_box - 1e-9 and t[:, 2].max() <= 1.1 * z_box + 1e-9
+
+
+def test_rgbd_candidates_follow_the_measured_depth_and_survive_holes():
+    depth = np.zeros((480, 640), np.float32)
+    depth[50:110, 100:180] = 0.7
+    rng = np.random.default_rng(0)
+    depth[rng.random(depth.shape) < 0.5] = 0.0  # half the pixels are holes
+    s = CandidateSampler(z_range=(2.0, 3.0), depth_offset=(0.0, 0.02))
+    _, t = s.sample(500, Frame(RGB, depth, K, BOX), rng)
+    assert np.all((t[:, 2] >= 0.7 - 1e-6) & (t[:, 2] <= 0.72 + 1e-6))
+    # a box with no valid depth at all falls back to the RGB rule
+    _, t = s.sample(50, Frame(RGB, np.zeros_like(depth), K, BOX), rng)
+    assert np.all((t[:, 2] >= 2.0) & (t[:, 2] <= 3.0))
+    # use_depth=False ignores the depth image
+    _, t = CandidateSampler(z_range=(2.0, 3.0), use_depth=False).sample(
+        20, Frame(RGB, depth, K, BOX), rng
+    )
+    assert np.all(t[:, 2] >= 2.0)
+
+
+def test_boxes_partly_outside_the_image():
+    depth = np.full((480, 640), 0.9, np.float32)
+    box = (600.0, 450.0, 100.0, 100.0)
+    _, t = CandidateSampler(depth_offset=(0.0, 0.0)).sample(
+        100, Frame(RGB, depth, K, box), np.random.default_rng(0)
+    )
+    np.testing.assert_allclose(t[:, 2], 0.9, atol=1e-6)
+    assert np.all(in_box(project_points(t, K), box))
+
+
+def test_valid_box():
+    assert valid_box((1, 2, 3, 4)) == (1.0, 2.0, 3.0, 4.0)
+    for bad in (None, (1, 2, 0, 4), (1, 2, 3, -1), (np.nan, 0, 1, 1), (1, 2, 3)):
+        assert valid_box(bad) is None
+    with pytest.raises(ValueError):
+        CandidateSampler().sample(3, Frame(RGB, None, K, None), np.random.default_rng(0))

@@ -1,0 +1,95 @@
+"""PoseRBPF / PoseRBPF++ with the OracleLikelihood, and the rotation-prior diffusion matrix."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from chpf.geometry import RotationGrid, geodesic_angle
+from chpf.tracking import (
+    CandidateSampler,
+    Frame,
+    OracleLikelihood,
+    RandomWalk,
+    RaoBlackwellisedFilter,
+)
+from chpf.tracking.rotation_diffusion import grid_spacing, neighbour_matrix
+
+GRID = RotationGrid.uniform(2048)
+
+
+def make_rbpf(oracle, reinvigorate=0.0, seed=0, **kw):
+    return RaoBlackwellisedFilter(
+        oracle,
+        n_particles=50,
+        motion=RandomWalk(sigma_t=0.01, sigma_r=0.1),
+        candidates=CandidateSampler(z_range=(0.6, 1.0)),
+        rng=np.random.default_rng(seed),
+        reinvigorate=reinvigorate,
+        **kw,
+    )
+
+
+def track(filt, oracle, seq, frames):
+    errs, res = [], []
+    for i in frames:
+        oracle.set_pose(seq.R[i], seq.t[i])
+        r = filt.step(Frame(seq.rgb, None, seq.K, seq.box(i)))
+        res.append(r)
+        errs.append([np.linalg.norm(r.t - seq.t[i]), np.degrees(geodesic_angle(r.R, seq.R[i]))])
+    return np.array(errs), res
+
+
+def test_neighbour_matrix_is_row_stochastic_and_local():
+    D = neighbour_matrix(GRID, k=8)
+    assert D.shape == (2048, 2048)
+    np.testing.assert_allclose(np.asarray(D.sum(axis=1)).ravel(), 1.0)
+    assert np.all(np.diff(D.indptr) == 8)
+    rows = np.repeat(np.arange(2048), 8)
+    angles = geodesic_angle(GRID.rotations[rows], GRID.rotations[D.indices])
+    assert angles.max() < 4 * grid_spacing(GRID)
+    # each entry keeps the largest share of its own mass
+    assert np.all(D.diagonal() >= D.max(axis=1).toarray().ravel() - 1e-12)
+    # a point mass diffuses to its neighbours and stays a distribution
+    p = np.zeros((1, 2048))
+    p[0, 5] = 1.0
+    q = p @ D
+    assert q.sum() == pytest.approx(1.0) and np.count_nonzero(q) > 1
+
+
+@pytest.mark.parametrize("estimate", ["argmax", "mean"])
+def test_poserbpf_converges_on_a_synthetic_moving_pose(sequence, estimate):
+    oracle = OracleLikelihood(grid=GRID)
+    errs, res = track(make_rbpf(oracle, rotation_estimate=estimate), oracle, sequence, range(40))
+    final = errs[-10:].mean(axis=0)
+    assert final[0] < 0.02 and final[1] < 12.0, final
+    assert all(r.alpha == 0.0 for r in res[-10:])  # no reinvigoration once tracking
+    assert np.isnan(res[-1].sum_C) and res[-1].sum_L > 0
+
+
+def test_poserbpf_plus_plus_reinvigorates_half(sequence):
+    oracle = OracleLikelihood(grid=GRID)
+    errs, res = track(make_rbpf(oracle, reinvigorate=0.5), oracle, sequence, range(40))
+    assert errs[-10:, 0].mean() < 0.02 and errs[-10:, 1].mean() < 12.0
+    assert all(r.alpha == 0.5 for r in res[-10:])
+
+
+def test_poserbpf_resets_when_similarity_drops(sequence):
+    oracle = OracleLikelihood(grid=GRID, occluded_L=0.1)
+    filt = make_rbpf(oracle, reset_threshold=0.3)
+    track(filt, oracle, sequence, range(20))
+    resets = filt.n_resets
+    oracle.occluded = True
+    _, res = track(filt, oracle, sequence, range(20, 22))
+    assert res[0].alpha == 1.0 and filt.n_resets == resets + 2
+    np.testing.assert_allclose(filt.P, 1.0 / len(GRID))  # all particles redrawn, uniform
+
+
+def test_poserbpf_same_seed_same_poses(sequence):
+    outs = []
+    for seed in (1, 1, 2):
+        oracle = OracleLikelihood(grid=GRID)
+        _, res = track(make_rbpf(oracle, seed=seed), oracle, sequence, range(8))
+        outs.append(np.concatenate([np.concatenate([r.R.ravel(), r.t]) for r in res]))
+    np.testing.assert_array_equal(outs[0], outs[1])
+    assert not np.allclose(outs[0], outs[2])

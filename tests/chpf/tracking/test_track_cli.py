@@ -1,0 +1,185 @@
+"""chpf-track on a tiny generated BOP dataset with the template bundle (see conftest.py)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from chpf.bop import read_results_csv
+from chpf.errors import BundleError, ConfigError, DatasetError
+from chpf.track_cli import cli, main, parse_methods
+from chpf.tracking.runlog import COLUMNS, read_log
+
+FRAMES = 8
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """A 1-scene, FRAMES-frame occluded sequence of the template bundle's object."""
+    from data_gen.config import load_config
+    from data_gen.sequences import generate_sequences
+
+    root = tmp_path_factory.mktemp("seq") / "bop"
+    sets = {
+        "num_scenes": 1,
+        "frames": FRAMES,
+        "width": 160,
+        "height": 120,
+        "focal": 150.0,
+        "default_distractors": 0,
+    }
+    cfg = load_config(None, [f"sequences.{k}={v}" for k, v in sets.items()])
+    generate_sequences(["box"], root, cfg, seed=0, progress=False)
+    return root
+
+
+def _run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    return code, capsys.readouterr().out.splitlines()
+
+
+def test_track_writes_results_logs_table_and_plot_and_resumes(
+    template_bundle, dataset, tmp_path, capsys
+):
+    out = tmp_path / "out"
+    args = ["--bundle", template_bundle, "--dataset", dataset, "--method", "chpf,poserbpf++"]
+    args += ["--out", out, "--no-progress"]
+    code, lines = _run(capsys, *args)
+    assert code == 0
+    assert lines[0].startswith("detections: simulated detector")
+    assert any("ADD-S AUC" in line for line in lines)
+    results = out / "chpf_bop-test.csv"
+    rows = read_results_csv(results)
+    assert 0 < len(rows) <= FRAMES and {r.obj_id for r in rows} == {2}
+    assert (out / "poserbpfpp_bop-test.csv").is_file()
+    log = read_log(out / "log_chpf.csv")
+    assert len(log) == FRAMES and (out / "plots" / "scene_000001.png").stat().st_size > 1000
+    alphas = [r.values["alpha"] for r in log if r.values["weighed"]]
+    assert alphas and all(0.0 <= a <= 1.0 for a in alphas)
+    assert np.isfinite([r.values["err_adds"] for r in log if r.values["ok"]]).all()
+    first = results.read_text()
+
+    # rerun: nothing left to do, nothing duplicated
+    code, lines = _run(capsys, *args)
+    assert (
+        code == 0 and results.read_text() == first and len(read_log(out / "log_chpf.csv")) == FRAMES
+    )
+
+    # an interrupted run: keep the first 3 frames (+ a partial line) -> the rerun completes the
+    # scene with the same poses as the uninterrupted run
+    text = results.read_text().splitlines(keepends=True)
+    results.write_text("".join(text[:4]) + text[4][:10])
+    log_lines = (out / "log_chpf.csv").read_text().splitlines(keepends=True)
+    (out / "log_chpf.csv").write_text("".join(log_lines[:4]) + log_lines[4][:7])
+    code, _ = _run(capsys, *args)
+    assert code == 0
+    again = read_results_csv(results)
+    assert [r.key for r in again] == [r.key for r in rows]
+    for a, b in zip(again, rows, strict=True):  # same poses (the time column differs)
+        np.testing.assert_allclose(a.R, b.R, atol=1e-9)
+        np.testing.assert_allclose(a.t, b.t, atol=1e-9)
+    assert len(read_log(out / "log_chpf.csv")) == FRAMES
+
+
+def test_detections_file_and_on_the_fly_simulated_detector(
+    template_bundle, dataset, tmp_path, capsys
+):
+    det = tmp_path / "dets.json"
+    det.write_text(
+        json.dumps(
+            [
+                {
+                    "scene_id": 1,
+                    "image_id": i,
+                    "category_id": 2,
+                    "bbox": [40, 30, 60, 50],
+                    "score": 1.0,
+                }
+                for i in (1, 2, 3)
+            ]
+        )
+    )
+    out = tmp_path / "out_det"
+    code, lines = _run(
+        capsys,
+        "--bundle",
+        template_bundle,
+        "--dataset",
+        dataset,
+        "--detections",
+        det,
+        "--out",
+        out,
+        "--no-progress",
+        "--no-plot",
+    )
+    assert code == 0 and lines[0].startswith(f"detections: detections from {det}")
+    log = read_log(out / "log_chpf.csv")
+    assert [int(r.values["has_box"]) for r in log] == [1, 1, 1] + [0] * (FRAMES - 3)
+    assert [int(r.values["weighed"]) for r in log] == [1, 1, 1] + [0] * (FRAMES - 3)
+
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    (copy / "detections_sim.json").unlink()
+    code, lines = _run(
+        capsys,
+        "--bundle",
+        template_bundle,
+        "--dataset",
+        copy,
+        "--out",
+        tmp_path / "out_sim",
+        "--no-progress",
+        "--no-plot",
+        "--modality",
+        "rgbd",
+    )
+    assert code == 0 and "simulated detector" in lines[0] and "scene_gt_info" in lines[0]
+
+
+def test_refusals(template_bundle, dataset, tmp_path, capsys):
+    manifest = json.loads((template_bundle / "manifest.json").read_text())
+    other = tmp_path / "other_bundle"
+    shutil.copytree(template_bundle, other)
+    manifest["object"]["obj_id"] = 7
+    (other / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(BundleError, match="obj_id 7"):
+        main(["--bundle", str(other), "--dataset", str(dataset), "--out", str(tmp_path / "o")])
+    empty = tmp_path / "nogt"
+    shutil.copytree(dataset, empty)
+    (empty / "detections_sim.json").unlink()
+    (empty / "test" / "000001" / "scene_gt_info.json").unlink()
+    with pytest.raises(DatasetError, match="no --detections"):
+        main(["--bundle", str(template_bundle), "--dataset", str(empty)])
+    with pytest.raises(ConfigError):
+        parse_methods("chpf,bogus")
+    assert parse_methods("all")[0] == "chpf" and "poserbpf++" in parse_methods("all")
+    # the console script prints one line and exits 2
+    import sys
+
+    argv = sys.argv
+    sys.argv = ["chpf-track", "--bundle", str(tmp_path / "nope"), "--dataset", str(dataset)]
+    try:
+        with pytest.raises(SystemExit) as exc:
+            cli()
+    finally:
+        sys.argv = argv
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and err[0].startswith("error: ")
+
+
+def test_demo_runs_chpf_and_two_baselines(template_bundle, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("CHPF_CACHE_DIR", str(tmp_path / "cache"))
+    out = tmp_path / "demo"
+    code, lines = _run(
+        capsys, "--demo", "--bundle", template_bundle, "--frames", 5, "--out", out, "--no-progress"
+    )
+    assert code == 0 and lines[0].startswith("detections: simulated detector")
+    table = (out / "auc_table.txt").read_text()
+    for m in ("chpf", "srl", "poserbpf"):
+        assert m in table
+    assert (out / "plots" / "scene_000001.png").is_file()
+    assert set(COLUMNS) <= set((out / "log_chpf.csv").read_text().splitlines()[0].split(","))
