@@ -7,7 +7,8 @@ A bundle is a folder written by ``chpf-export``::
     BUNDLE_DIR/ch_encoder.onnx    the classifier's observed-crop encoder (absent if AE one shared)
     BUNDLE_DIR/ch_head.onnx       "obs" (N,E), "cand" (N,E) float32 -> "p_misaligned" float32 (N,)
     BUNDLE_DIR/codebook.npz       rotations (K,3,3) f32 allocentric, ae_embeddings (K,E) f32,
-                                  ch_embeddings (K,E) f32, depth (K,Sd,Sd) f16 metres (0 = empty)
+                                  depth (K,Sd,Sd) f16 metres (0 = empty), and ch_embeddings
+                                  (K,E) f32 unless the classifier shares the AE encoder
 
 The depth crops are rendered at (S,S) with ``spec.K`` and reduced by an integer factor
 ``f = S // Sd`` (default 2): each depth pixel is the mean of the valid (non-zero) pixels of its
@@ -38,7 +39,7 @@ SUPPORTED_CROP_SIZES: tuple[int, ...] = tuple(range(32, 257, 16))
 """Crop sizes S the runtime supports: multiples of 16 from 32 to 256."""
 
 _REQUIRED_FILES = ("ae_encoder", "ch_head", "codebook")
-_CODEBOOK_ARRAYS = ("rotations", "ae_embeddings", "ch_embeddings", "depth")
+_CODEBOOK_ARRAYS = ("rotations", "ae_embeddings", "depth")  # + ch_embeddings unless shared
 
 
 @dataclass(frozen=True)
@@ -369,11 +370,14 @@ def _load_codebook(path: Path, k: int, dim: int, size: int) -> dict[str, np.ndar
             if missing:
                 raise BundleError(f"{path}: codebook lacks arrays {missing}")
             arrays = {a: z[a] for a in _CODEBOOK_ARRAYS}
+            if "ch_embeddings" in z.files:
+                arrays["ch_embeddings"] = z["ch_embeddings"]
     except BundleError:
         raise
     except Exception as err:
         raise BundleError(f"{path}: unreadable codebook ({type(err).__name__}: {err})") from None
-    rot, ae, ch, depth = (arrays[a] for a in _CODEBOOK_ARRAYS)
+    rot, ae, depth = (arrays[a] for a in _CODEBOOK_ARRAYS)
+    ch = arrays.get("ch_embeddings", ae)
     if rot.shape != (k, 3, 3):
         raise BundleError(f"{path}: rotations have shape {rot.shape}, expected ({k}, 3, 3)")
     for name, arr in (("ae_embeddings", ae), ("ch_embeddings", ch)):
@@ -387,5 +391,7 @@ def _load_codebook(path: Path, k: int, dim: int, size: int) -> dict[str, np.ndar
     if err > 1e-3:
         raise BundleError(f"{path}: codebook rotations are not orthonormal (error {err:.2g})")
     arrays["ae_embeddings"] = np.ascontiguousarray(ae, dtype=np.float32)
-    arrays["ch_embeddings"] = np.ascontiguousarray(ch, dtype=np.float32)
+    arrays["ch_embeddings"] = (
+        arrays["ae_embeddings"] if ch is ae else np.ascontiguousarray(ch, dtype=np.float32)
+    )
     return arrays

@@ -1,7 +1,9 @@
-"""Shared helpers for the command-line tools: one-line errors and atomic file writes."""
+"""Shared helpers for the command-line tools: one-line errors, atomic file writes and
+argument types."""
 
 from __future__ import annotations
 
+import argparse
 import functools
 import io
 import os
@@ -31,6 +33,16 @@ def run_main(main: Callable[[list[str] | None], int]) -> Callable[[], None]:
         sys.exit(code or 0)
 
     return cli
+
+
+def scene_list(text: str) -> list[int]:
+    """argparse type of ``--scenes``: comma-separated scene ids ("48,49") -> [48, 49]."""
+    try:
+        return [int(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated scene ids, got {text!r}"
+        ) from None
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:

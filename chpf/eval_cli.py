@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from chpf.bop import BopDataset
-from chpf.cli import atomic_write_text, run_main
+from chpf.cli import atomic_write_text, run_main, scene_list
 from chpf.errors import DatasetError
 from chpf.results import ResultRow, read_results_csv
 
@@ -179,12 +179,13 @@ def evaluate(
     return report
 
 
+def format_auc(v: float | None) -> str:
+    """An AUC for a table: two decimals, "-" for None (no targets)."""
+    return "-" if v is None else f"{v:.2f}"
+
+
 def format_table(report: dict[str, Any]) -> str:
     """Text table: obj_id, n, missing, ADD AUC, ADD-S AUC; then the ``all`` row."""
-
-    def fmt(v: float | None) -> str:
-        return "-" if v is None else f"{v:.2f}"
-
     lines = [f"{'obj_id':>6} {'n':>7} {'missing':>7} {'ADD AUC':>8} {'ADD-S AUC':>9}"]
     entries = [(k, v) for k, v in report["objects"].items()] + [("all", report["all"])]
     for name, e in entries:
@@ -192,18 +193,9 @@ def format_table(report: dict[str, Any]) -> str:
             lines.append("-" * len(lines[0]))
         lines.append(
             f"{name:>6} {e['n']:>7d} {e['n_missing']:>7d} "
-            f"{fmt(e['add_auc']):>8} {fmt(e['adds_auc']):>9}"
+            f"{format_auc(e['add_auc']):>8} {format_auc(e['adds_auc']):>9}"
         )
     return "\n".join(lines)
-
-
-def _scene_list(text: str) -> list[int]:
-    try:
-        return [int(s) for s in text.split(",") if s.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected comma-separated scene ids, got {text!r}"
-        ) from None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -215,7 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--dataset", required=True, type=Path, help="BOP dataset root")
     parser.add_argument("--results", required=True, type=Path, help="BOP results CSV")
     parser.add_argument("--split", default="test", help="split folder (default: test)")
-    parser.add_argument("--scenes", type=_scene_list, default=None, help="e.g. 48,49 (default all)")
+    parser.add_argument("--scenes", type=scene_list, default=None, help="e.g. 48,49 (default all)")
     parser.add_argument("--json", type=Path, default=None, help="also write the report as JSON")
     args = parser.parse_args(argv)
 

@@ -5,6 +5,8 @@ Poses map object to camera: x_cam = R @ x_obj + t; points are model points (M, 3
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -104,24 +106,23 @@ def adds_batch(
     return out
 
 
+def _one_pair(batch_fn: Callable[..., np.ndarray], points: np.ndarray, *pose: np.ndarray) -> float:
+    """``batch_fn(points, R_est, t_est, R_gt, t_gt)`` of one pose pair (R (3, 3), t (3,) m)."""
+    return float(batch_fn(points, *(np.asarray(a, dtype=np.float64)[None] for a in pose))[0])
+
+
 def add(
     points: np.ndarray, R_est: np.ndarray, t_est: np.ndarray, R_gt: np.ndarray, t_gt: np.ndarray
 ) -> float:
     """ADD (metres) of one pose pair; points (M, 3) m, R (3, 3), t (3,) m."""
-    R_est, t_est, R_gt, t_gt = (
-        np.asarray(a, dtype=np.float64)[None] for a in (R_est, t_est, R_gt, t_gt)
-    )
-    return float(add_batch(points, R_est, t_est, R_gt, t_gt)[0])
+    return _one_pair(add_batch, points, R_est, t_est, R_gt, t_gt)
 
 
 def adds(
     points: np.ndarray, R_est: np.ndarray, t_est: np.ndarray, R_gt: np.ndarray, t_gt: np.ndarray
 ) -> float:
     """ADD-S (metres) of one pose pair (KD-tree nearest neighbour); points (M, 3) m."""
-    R_est, t_est, R_gt, t_gt = (
-        np.asarray(a, dtype=np.float64)[None] for a in (R_est, t_est, R_gt, t_gt)
-    )
-    return float(adds_batch(points, R_est, t_est, R_gt, t_gt)[0])
+    return _one_pair(adds_batch, points, R_est, t_est, R_gt, t_gt)
 
 
 def auc(errors: np.ndarray, max_threshold: float = 0.1) -> float:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from chpf.bop import BopDataset, read_results_csv
 from chpf.bundle import Bundle
-from chpf.cli import atomic_write_text, run_main
+from chpf.cli import atomic_write_text, run_main, scene_list
 from chpf.errors import BundleError, ConfigError, DatasetError
 from chpf.tracking.boxes import make_box_source
 from chpf.tracking.config import METHODS, MODALITIES, PAPER_METHODS, make_config
@@ -46,15 +46,6 @@ def parse_methods(text: str) -> list[str]:
     return list(dict.fromkeys(methods))
 
 
-def _scene_list(text: str) -> list[int]:
-    try:
-        return [int(s) for s in text.split(",") if s.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected comma-separated scene ids, got {text!r}"
-        ) from None
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="chpf-track",
@@ -69,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bundle", type=Path, help="model bundle folder (default for --demo: shipped)")
     p.add_argument("--dataset", type=Path, help="BOP dataset root")
     p.add_argument("--split", default="test", help="split folder (default: test)")
-    p.add_argument("--scenes", type=_scene_list, default=None, help="e.g. 48,49 (default: all)")
+    p.add_argument("--scenes", type=scene_list, default=None, help="e.g. 48,49 (default: all)")
     p.add_argument("--method", default="chpf", help="a method, a comma list, or 'all'")
     p.add_argument("--modality", default="rgb", choices=MODALITIES)
     p.add_argument(
@@ -98,13 +89,9 @@ def _dataset_obj_ids(ds: BopDataset, split: str, scenes: list[int]) -> set[int]:
     return ids
 
 
-def _auc(v: float | None) -> str:
-    return "-" if v is None else f"{v:.2f}"
-
-
 def auc_table(dataset: Path, runs: dict[str, MethodRun], split: str, scenes: list[int]) -> str:
     """ADD / ADD-S AUC per method (chpf.eval_cli.evaluate) plus speed, as a text table."""
-    from chpf.eval_cli import evaluate
+    from chpf.eval_cli import evaluate, format_auc
 
     head = f"{'method':<11} {'frames':>6} {'missing':>7} {'ADD AUC':>8} {'ADD-S AUC':>9} {'fps':>6}"
     lines = [head, "-" * len(head)]
@@ -113,8 +100,8 @@ def auc_table(dataset: Path, runs: dict[str, MethodRun], split: str, scenes: lis
         rep = evaluate(dataset, rows, split=split, scenes=scenes)["all"]
         fps = "-" if run.frames == 0 else f"{run.fps:.1f}"
         lines.append(
-            f"{m:<11} {rep['n']:>6d} {rep['n_missing']:>7d} {_auc(rep['add_auc']):>8} "
-            f"{_auc(rep['adds_auc']):>9} {fps:>6}"
+            f"{m:<11} {rep['n']:>6d} {rep['n_missing']:>7d} {format_auc(rep['add_auc']):>8} "
+            f"{format_auc(rep['adds_auc']):>9} {fps:>6}"
         )
     return "\n".join(lines)
 

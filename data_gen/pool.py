@@ -32,6 +32,8 @@ import multiprocessing as mp
 import os
 import shutil
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -74,6 +76,14 @@ def _load_arrays(path: Path, names: list[str], mmap: bool) -> dict[str, np.ndarr
         return None
 
 
+def _require_arrays(path: str | Path, names: list[str], mmap: bool, what: str) -> dict:
+    """The arrays ``names`` of an existing pool folder; FileNotFoundError naming ``what``."""
+    arrays = _load_arrays(Path(path), names, mmap)
+    if arrays is None:
+        raise FileNotFoundError(f"{path}: no {what}")
+    return arrays
+
+
 def _save_pool(path: Path, arrays: dict[str, np.ndarray], meta: dict) -> None:
     """Write arrays + meta.json into a temp folder next to ``path`` and rename it into place."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -87,6 +97,25 @@ def _save_pool(path: Path, arrays: dict[str, np.ndarray], meta: dict) -> None:
         os.rename(tmp, path)
     except OSError:  # built concurrently by another process: keep theirs
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _load_or_build(
+    path: Path,
+    names: list[str],
+    mmap: bool,
+    build: Callable[[], tuple[dict[str, np.ndarray], dict]],
+) -> dict[str, np.ndarray]:
+    """The arrays ``names`` of the pool folder ``path``. If it is missing, ``build() -> (arrays,
+    meta)`` runs first; its time goes into ``meta["build_seconds"]`` and both are saved (atomic).
+    ``mmap``: read-only memory maps (the built arrays themselves if they cannot be re-read)."""
+    arrays = _load_arrays(path, names, mmap)
+    if arrays is not None:
+        return arrays
+    t0 = time.perf_counter()
+    arrays, meta = build()
+    meta["build_seconds"] = round(time.perf_counter() - t0, 2)
+    _save_pool(path, arrays, meta)
+    return _load_arrays(path, names, mmap) or arrays
 
 
 def _chunks(n: int, size: int = CHUNK) -> list[tuple[int, int]]:
@@ -121,6 +150,16 @@ class TaskRunner:
         if exc[0] is not None and self._pool is not None:
             self._pool.terminate()
         self.close()
+
+
+@contextmanager
+def _task_runner(runner: TaskRunner | None, workers: int) -> Iterator[TaskRunner]:
+    """``runner`` if given, else a TaskRunner of ``workers`` closed on exit."""
+    if runner is not None:
+        yield runner
+        return
+    with TaskRunner(workers) as own:
+        yield own
 
 
 def _run_chunks(fn, tasks: list, runner: TaskRunner, desc: str, progress: bool, total: int) -> list:
@@ -207,39 +246,23 @@ def codebook_pool(
     convention (object at (0,0,D_r), K = spec.K), rendered once and cached under ``cache_dir``
     (None: ``default_cache_dir()``). ``mmap``: return read-only memory maps. ``workers``:
     render processes when the pool must be built (or pass a shared ``runner``)."""
-    path = codebook_pool_path(obj, spec, k, cache_dir)
     grid = RotationGrid.uniform(int(k))
-    arrays = _load_arrays(path, ["rgb", "depth", "mask"], mmap)
-    if arrays is None:
-        t0 = time.perf_counter()
-        with TaskRunner(workers) as own:
-            cb = render_crops_parallel(
-                obj,
-                grid.rotations,
-                spec,
-                runner or own,
-                progress,
-                f"codebook pool {obj.name} k={k}",
-            )
-        meta = {
-            "kind": "codebook",
-            "object": obj.name,
-            "crop": spec.to_dict(),
-            "k": int(k),
-            "build_seconds": round(time.perf_counter() - t0, 2),
-        }
-        _save_pool(path, {"rgb": cb.rgb, "depth": cb.depth, "mask": cb.mask}, meta)
-        arrays = _load_arrays(path, ["rgb", "depth", "mask"], mmap)
-        if arrays is None:
-            arrays = {"rgb": cb.rgb, "depth": cb.depth, "mask": cb.mask}
+
+    def build() -> tuple[dict[str, np.ndarray], dict]:
+        with _task_runner(runner, workers) as r:
+            desc = f"codebook pool {obj.name} k={k}"
+            cb = render_crops_parallel(obj, grid.rotations, spec, r, progress, desc)
+        meta = {"kind": "codebook", "object": obj.name, "crop": spec.to_dict(), "k": int(k)}
+        return {"rgb": cb.rgb, "depth": cb.depth, "mask": cb.mask}, meta
+
+    path = codebook_pool_path(obj, spec, k, cache_dir)
+    arrays = _load_or_build(path, ["rgb", "depth", "mask"], mmap, build)
     return grid, CropBatch(rgb=arrays["rgb"], depth=arrays["depth"], mask=arrays["mask"])
 
 
 def load_codebook_pool(path: str | Path, mmap: bool = True) -> CropBatch:
     """The CropBatch of an existing codebook pool folder (no object needed)."""
-    arrays = _load_arrays(Path(path), ["rgb", "depth", "mask"], mmap)
-    if arrays is None:
-        raise FileNotFoundError(f"{path}: no codebook pool")
+    arrays = _require_arrays(path, ["rgb", "depth", "mask"], mmap, "codebook pool")
     return CropBatch(rgb=arrays["rgb"], depth=arrays["depth"], mask=arrays["mask"])
 
 
@@ -421,20 +444,16 @@ def obs_pool(
     runner: TaskRunner | None = None,
 ) -> ObsPool:
     """The observation pool of ``obj`` (``cfg``: the obs_pool config section), cached."""
-    path = obs_pool_path(obj, spec, cfg, cache_dir)
-    arrays = _load_arrays(path, list(ObsPool.FIELDS), mmap)
-    if arrays is None:
-        t0 = time.perf_counter()
+
+    def build() -> tuple[dict[str, np.ndarray], dict]:
         n = int(cfg["num_entries"])
         poses = sample_obs_poses(obj.diameter, cfg, n, np.random.default_rng([cfg["seed"], 1001]))
         tasks = [
             (obj, spec, cfg["margin"], {k: v[a:b] for k, v in poses.items()})
             for a, b in _chunks(n, 32)
         ]
-        with TaskRunner(workers) as own:
-            parts = _run_chunks(
-                _obs_task, tasks, runner or own, f"obs pool {obj.name}", progress, n
-            )
+        with _task_runner(runner, workers) as r:
+            parts = _run_chunks(_obs_task, tasks, r, f"obs pool {obj.name}", progress, n)
         arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         arrays.update(R_ego=poses["R_ego"], t=poses["t"], K=poses["K"])
         meta = {
@@ -443,18 +462,17 @@ def obs_pool(
             "crop": spec.to_dict(),
             "settings": cfg,
             "window_size": window_size(spec, cfg["margin"]),
-            "build_seconds": round(time.perf_counter() - t0, 2),
         }
-        _save_pool(path, arrays, meta)
-        arrays = _load_arrays(path, list(ObsPool.FIELDS), mmap) or arrays
+        return arrays, meta
+
+    path = obs_pool_path(obj, spec, cfg, cache_dir)
+    arrays = _load_or_build(path, list(ObsPool.FIELDS), mmap, build)
     return ObsPool(**{k: arrays[k] for k in ObsPool.FIELDS}, path=path)
 
 
 def load_obs_pool(path: str | Path, mmap: bool = True) -> ObsPool:
     """The ObsPool of an existing observation pool folder (no object needed)."""
-    arrays = _load_arrays(Path(path), list(ObsPool.FIELDS), mmap)
-    if arrays is None:
-        raise FileNotFoundError(f"{path}: no observation pool")
+    arrays = _require_arrays(path, list(ObsPool.FIELDS), mmap, "observation pool")
     return ObsPool(**{k: arrays[k] for k in ObsPool.FIELDS}, path=Path(path))
 
 
@@ -470,6 +488,22 @@ class OccluderPool:
 
     def __len__(self) -> int:
         return int(self.rgb.shape[0])
+
+
+def _empty_occluder_pool(size: int) -> OccluderPool:
+    return OccluderPool(np.zeros((0, size, size, 3), np.uint8), np.zeros((0, size, size), bool))
+
+
+def _occluder_parts(objects: list, size: int, cfg: dict) -> dict:
+    """What the occluder pool of ``objects`` depends on (cache key and meta.json)."""
+    from chpf.objects import object_fingerprint
+
+    return {
+        "objects": [object_fingerprint(o) for o in objects],
+        "size": int(size),
+        "n": int(cfg["num_entries"]),
+        "seed": int(cfg["seed"]),
+    }
 
 
 def occluder_objects(names: list[str], exclude_fingerprint: str | None) -> list:
@@ -493,48 +527,33 @@ def occluder_pool(
 ) -> OccluderPool:
     """Crops (side ``size``) of ``objects`` at random orientations (``cfg``: occluder_pool
     section; entries split evenly over the objects), cached. Empty pool if no objects."""
-    from chpf.objects import object_fingerprint
-
     if not objects:
-        return OccluderPool(np.zeros((0, size, size, 3), np.uint8), np.zeros((0, size, size), bool))
-    path = occluder_pool_path(objects, size, cfg, cache_dir)
-    arrays = _load_arrays(path, ["rgb", "mask"], mmap)
-    if arrays is None:
-        parts = {
-            "objects": [object_fingerprint(o) for o in objects],
-            "size": int(size),
-            "n": int(cfg["num_entries"]),
-            "seed": int(cfg["seed"]),
-        }
-        t0 = time.perf_counter()
+        return _empty_occluder_pool(size)
+
+    def build() -> tuple[dict[str, np.ndarray], dict]:
         rng = np.random.default_rng([cfg["seed"], 2002])
         n = int(cfg["num_entries"])
         counts = [n // len(objects) + (i < n % len(objects)) for i in range(len(objects))]
         rgbs, masks = [], []
-        with TaskRunner(workers) as own:
+        with _task_runner(runner, workers) as r:
             for o, c in zip(objects, counts, strict=True):
                 if c == 0:
                     continue
                 spec = CropSpec.for_object(o.diameter, size)
-                cb = render_crops_parallel(
-                    o,
-                    random_rotations(c, rng),
-                    spec,
-                    runner or own,
-                    progress,
-                    f"occluder pool {o.name}",
-                )
+                desc = f"occluder pool {o.name}"
+                cb = render_crops_parallel(o, random_rotations(c, rng), spec, r, progress, desc)
                 rgbs.append(cb.rgb)
                 masks.append(cb.mask)
         arrays = {"rgb": np.concatenate(rgbs), "mask": np.concatenate(masks)}
         meta = {
             "kind": "occluders",
-            **parts,
+            **_occluder_parts(objects, size, cfg),
             "names": [o.name for o in objects],
-            "build_seconds": round(time.perf_counter() - t0, 2),
         }
-        _save_pool(path, arrays, meta)
-        arrays = _load_arrays(path, ["rgb", "mask"], mmap) or arrays
+        return arrays, meta
+
+    path = occluder_pool_path(objects, size, cfg, cache_dir)
+    arrays = _load_or_build(path, ["rgb", "mask"], mmap, build)
     return OccluderPool(arrays["rgb"], arrays["mask"])
 
 
@@ -542,24 +561,15 @@ def occluder_pool_path(
     objects: list, size: int, cfg: dict, cache_dir: str | Path | None = None
 ) -> Path | None:
     """Cache folder of the occluder pool of ``objects`` (None if there are none)."""
-    from chpf.objects import object_fingerprint
-
     if not objects:
         return None
-    parts = {
-        "objects": [object_fingerprint(o) for o in objects],
-        "size": int(size),
-        "n": int(cfg["num_entries"]),
-        "seed": int(cfg["seed"]),
-    }
+    parts = _occluder_parts(objects, size, cfg)
     return _pool_path(cache_dir, "occluders", "+".join(o.name for o in objects), parts)
 
 
 def load_occluder_pool(path: str | Path | None, size: int, mmap: bool = True) -> OccluderPool:
     """The OccluderPool of an existing folder; an empty pool for None."""
     if path is None:
-        return OccluderPool(np.zeros((0, size, size, 3), np.uint8), np.zeros((0, size, size), bool))
-    arrays = _load_arrays(Path(path), ["rgb", "mask"], mmap)
-    if arrays is None:
-        raise FileNotFoundError(f"{path}: no occluder pool")
+        return _empty_occluder_pool(size)
+    arrays = _require_arrays(path, ["rgb", "mask"], mmap, "occluder pool")
     return OccluderPool(arrays["rgb"], arrays["mask"])

@@ -35,13 +35,15 @@ class Codebook:
     depth: np.ndarray  # (K,Sd,Sd) float16 metres, 0 = empty
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The npz members by name."""
-        return {
+        """The npz members by name; ``ch_embeddings`` is left out when it is the AE's own."""
+        arrays = {
             "rotations": self.rotations,
             "ae_embeddings": self.ae_embeddings,
-            "ch_embeddings": self.ch_embeddings,
             "depth": self.depth,
         }
+        if self.ch_embeddings is not self.ae_embeddings:
+            arrays["ch_embeddings"] = self.ch_embeddings
+        return arrays
 
 
 def downsample_depth(depth: np.ndarray, factor: int = DEFAULT_DEPTH_FACTOR) -> np.ndarray:

@@ -16,7 +16,7 @@ import hashlib
 import os
 import pickle
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import torch
 
@@ -25,6 +25,7 @@ from training.models import Autoencoder, CHClassifier
 
 CHECKPOINT_FORMAT_VERSION = 1
 MODEL_TYPES = {"ae": "an autoencoder", "ch": "a CH classifier"}
+M = TypeVar("M", Autoencoder, CHClassifier)
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
@@ -76,22 +77,24 @@ def _model_state(ckpt: dict[str, Any], prefix: str = "model.") -> dict[str, torc
     return {k[len(prefix) :]: v for k, v in sd.items() if k.startswith(prefix)}
 
 
-def load_autoencoder(path: str | os.PathLike) -> tuple[Autoencoder, dict[str, Any]]:
-    """``(Autoencoder in eval mode, chpf info)`` from an ``ae`` checkpoint."""
+def _load_model(path: str | os.PathLike, model_type: str, cls: type[M]) -> tuple[M, dict[str, Any]]:
+    """``(cls(model_config) with the stored weights, in eval mode, chpf info)`` from a
+    checkpoint of ``model_type``."""
     ckpt = load_checkpoint(path)
-    info = _info(ckpt, Path(path), "ae")
-    model = Autoencoder(info["model_config"])
+    info = _info(ckpt, Path(path), model_type)
+    model = cls(info["model_config"])
     _load_state(model, _model_state(ckpt), Path(path))
     return model.eval(), info
+
+
+def load_autoencoder(path: str | os.PathLike) -> tuple[Autoencoder, dict[str, Any]]:
+    """``(Autoencoder in eval mode, chpf info)`` from an ``ae`` checkpoint."""
+    return _load_model(path, "ae", Autoencoder)
 
 
 def load_classifier(path: str | os.PathLike) -> tuple[CHClassifier, dict[str, Any]]:
     """``(CHClassifier in eval mode, chpf info)`` from a ``ch`` checkpoint."""
-    ckpt = load_checkpoint(path)
-    info = _info(ckpt, Path(path), "ch")
-    model = CHClassifier(info["model_config"])
-    _load_state(model, _model_state(ckpt), Path(path))
-    return model.eval(), info
+    return _load_model(path, "ch", CHClassifier)
 
 
 def _load_state(model: torch.nn.Module, state: dict[str, torch.Tensor], path: Path) -> None:

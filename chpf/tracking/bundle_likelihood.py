@@ -99,16 +99,26 @@ class BundleLikelihood:
         return self.median_extent_px * self.spec.render_distance / self.spec.focal
 
     # ------------------------------------------------------------------ pieces
-    def _crops(self, frame: Frame, t: np.ndarray) -> np.ndarray:
+    def _affines(self, frame: Frame, t: np.ndarray, spec: CropSpec) -> np.ndarray:
+        """Crop affines (N,2,3) of ``spec`` at t (N,3), z clamped to at least ``z_min``."""
         t_safe = t.copy()
         t_safe[:, 2] = np.maximum(t_safe[:, 2], self.z_min)
-        aff = crop_affines(t_safe, np.asarray(frame.K, dtype=np.float64), self.spec)
-        return extract_crops(frame.rgb, aff, self.spec.size)
+        return crop_affines(t_safe, np.asarray(frame.K, dtype=np.float64), spec)
+
+    def _crops_and_embed(
+        self, frame: Frame, t: np.ndarray, ms: dict[str, float]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Crops (N,S,S,3) at t (N,3) and their AE embeddings (N,E); times into ``ms``."""
+        t0 = time.perf_counter()
+        crops = extract_crops(frame.rgb, self._affines(frame, t, self.spec), self.spec.size)
+        ms["crop"] = ms_since(t0)
+        t0 = time.perf_counter()
+        emb = self.bundle.embed(crops)
+        ms["encode"] = ms_since(t0)
+        return crops, emb
 
     def _depth_crops(self, frame: Frame, t: np.ndarray) -> np.ndarray:
-        t_safe = t.copy()
-        t_safe[:, 2] = np.maximum(t_safe[:, 2], self.z_min)
-        aff = crop_affines(t_safe, np.asarray(frame.K, dtype=np.float64), self.depth_spec)
+        aff = self._affines(frame, t, self.depth_spec)
         depth = np.asarray(frame.depth, dtype=np.float32)
         return extract_crops(depth, aff, self.depth_spec.size, interpolation=cv2.INTER_NEAREST)
 
@@ -129,13 +139,7 @@ class BundleLikelihood:
         """Scores of N hypotheses R (N,3,3), t (N,3) metres (see module docstring)."""
         ms: dict[str, float] = {}
         t = np.asarray(t, dtype=np.float64)
-        t0 = time.perf_counter()
-        crops = self._crops(frame, t)
-        ms["crop"] = ms_since(t0)
-
-        t0 = time.perf_counter()
-        emb = self.bundle.embed(crops)
-        ms["encode"] = ms_since(t0)
+        crops, emb = self._crops_and_embed(frame, t, ms)
         need_c = self.c_mode in ("learned", "both")
         if need_c and not self.bundle.shares_encoder:
             t0 = time.perf_counter()
@@ -182,12 +186,7 @@ class BundleLikelihood:
         """Cosine similarities (N,K) of the crops at t (N,3) with the whole AE codebook."""
         ms: dict[str, float] = {}
         t = np.asarray(t, dtype=np.float64)
-        t0 = time.perf_counter()
-        crops = self._crops(frame, t)
-        ms["crop"] = ms_since(t0)
-        t0 = time.perf_counter()
-        emb = self.bundle.embed(crops)
-        ms["encode"] = ms_since(t0)
+        _, emb = self._crops_and_embed(frame, t, ms)
         t0 = time.perf_counter()
         cos = emb @ self._codebook_t
         cos[t[:, 2] < self.z_min] = -1.0

@@ -7,7 +7,6 @@ The torch -> ONNX path is tested in tests/export.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import subprocess
 import sys
@@ -19,10 +18,11 @@ import pytest
 onnx = pytest.importorskip("onnx")
 from onnx import TensorProto, helper, numpy_helper  # noqa: E402
 
-from chpf.bundle import FORMAT_VERSION, Bundle  # noqa: E402
+from chpf.bundle import Bundle  # noqa: E402
 from chpf.crops import CropSpec  # noqa: E402
 from chpf.errors import BundleError, ImageSizeError  # noqa: E402
 from chpf.geometry import RotationGrid  # noqa: E402
+from tests.helpers import dot_head_model, onnx_model, write_bundle  # noqa: E402
 
 S, E, K = 32, 8, 40
 HEAD_A, HEAD_B = 4.0, 1.0
@@ -42,44 +42,21 @@ def _encoder_model(w: np.ndarray) -> bytes:
         numpy_helper.from_array(np.array([-1, s * s * 3], np.int64), "shape"),
         numpy_helper.from_array(w.astype(np.float32), "W"),
     ]
-    graph = helper.make_graph(
-        nodes,
+    return onnx_model(
         "enc",
+        nodes,
         [helper.make_tensor_value_info("crops", TensorProto.UINT8, ["batch", s, s, 3])],
         [helper.make_tensor_value_info("embedding", TensorProto.FLOAT, ["batch", E])],
         inits,
     )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    return model.SerializeToString()
 
 
 def _head_model() -> bytes:
-    nodes = [
-        helper.make_node("Mul", ["obs", "cand"], ["m"]),
-        helper.make_node("ReduceSum", ["m", "axes"], ["d"], keepdims=0),
+    logit = [
         helper.make_node("Mul", ["d", "a"], ["e"]),
-        helper.make_node("Add", ["e", "b"], ["l"]),
-        helper.make_node("Sigmoid", ["l"], ["p_misaligned"]),
+        helper.make_node("Add", ["e", "b"], ["logit"]),
     ]
-    inits = [
-        numpy_helper.from_array(np.array([1], np.int64), "axes"),
-        numpy_helper.from_array(np.array(-HEAD_A, np.float32), "a"),
-        numpy_helper.from_array(np.array(HEAD_B, np.float32), "b"),
-    ]
-    graph = helper.make_graph(
-        nodes,
-        "head",
-        [
-            helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", E]),
-            helper.make_tensor_value_info("cand", TensorProto.FLOAT, ["batch", E]),
-        ],
-        [helper.make_tensor_value_info("p_misaligned", TensorProto.FLOAT, ["batch"])],
-        inits,
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    return model.SerializeToString()
+    return dot_head_model("head", E, logit, {"a": -HEAD_A, "b": HEAD_B})
 
 
 def _ref_embed(crops: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -94,7 +71,6 @@ def _sigmoid(x: np.ndarray) -> np.ndarray:
 def make_bundle(root: Path, shared: bool = False, seed: int = 0) -> dict:
     """Write a valid bundle into ``root``; returns the weights and arrays used."""
     rng = np.random.default_rng(seed)
-    root.mkdir(parents=True, exist_ok=True)
     w_ae = rng.normal(size=(S * S * 3, E)).astype(np.float32)
     w_ch = rng.normal(size=(S * S * 3, E)).astype(np.float32)
     grid = RotationGrid.uniform(K)
@@ -105,26 +81,18 @@ def make_bundle(root: Path, shared: bool = False, seed: int = 0) -> dict:
     depth = rng.uniform(0.5, 1.0, (K, S // 2, S // 2)) * (
         rng.uniform(size=(K, S // 2, S // 2)) > 0.5
     )
-    files = {
-        "ae_encoder.onnx": _encoder_model(w_ae),
-        "ch_head.onnx": _head_model(),
-    }
-    if not shared:
-        files["ch_encoder.onnx"] = _encoder_model(w_ch)
-    np.savez_compressed(
-        root / "codebook.npz",
-        rotations=grid.rotations.astype(np.float32),
-        ae_embeddings=ae,
-        ch_embeddings=ch,
-        depth=depth.astype(np.float16),
-    )
-    for name, data in files.items():
-        (root / name).write_bytes(data)
-    names = [*files, "codebook.npz"]
-    spec = CropSpec(size=S, render_distance=0.8, focal=3.6 * S)
-    manifest = {
-        "format_version": FORMAT_VERSION,
-        "object": {
+    write_bundle(
+        root,
+        encoder=_encoder_model(w_ae),
+        head=_head_model(),
+        ch_encoder=None if shared else _encoder_model(w_ch),
+        codebook={
+            "rotations": grid.rotations.astype(np.float32),
+            "ae_embeddings": ae,
+            "ch_embeddings": ch,
+            "depth": depth.astype(np.float16),
+        },
+        obj={
             "name": "box",
             "obj_id": 2,
             "diameter": 0.2,
@@ -132,21 +100,11 @@ def make_bundle(root: Path, shared: bool = False, seed: int = 0) -> dict:
             "symmetries_continuous": [],
             "fingerprint": "abc",
         },
-        "crop": spec.to_dict(),
-        "embedding_dim": E,
-        "codebook_size": K,
-        "ch_shares_ae_encoder": shared,
-        "files": {
-            "ae_encoder": "ae_encoder.onnx",
-            "ch_obs_encoder": None if shared else "ch_encoder.onnx",
-            "ch_head": "ch_head.onnx",
-            "codebook": "codebook.npz",
-        },
-        "sha256": {n: hashlib.sha256((root / n).read_bytes()).hexdigest() for n in names},
-        "training": {},
-        "created_by": "test",
-    }
-    (root / "manifest.json").write_text(json.dumps(manifest))
+        crop=CropSpec(size=S, render_distance=0.8, focal=3.6 * S).to_dict(),
+        training={},
+        created_by="test",
+        compress=True,
+    )
     return {"w_ae": w_ae, "w_ch": w_ch, "ae": ae, "ch": ch, "depth": depth, "grid": grid}
 
 

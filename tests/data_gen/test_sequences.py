@@ -27,26 +27,16 @@ ARGS = [
 ]
 
 
+def _sequences(out, occlusion: str = "heavy") -> int:
+    """Run the ``sequences`` command (mug target, can distractor, seed 3) into ``out``."""
+    args = ["--objects", "mug,can", "--out", str(out), "--occlusion", occlusion, "--seed", "3"]
+    return cli.main(["sequences", *args, *ARGS])
+
+
 @pytest.fixture(scope="module")
 def seq_root(tmp_path_factory):
     root = tmp_path_factory.mktemp("seq") / "bop"
-    assert (
-        cli.main(
-            [
-                "sequences",
-                "--objects",
-                "mug,can",
-                "--out",
-                str(root),
-                "--occlusion",
-                "heavy",
-                "--seed",
-                "3",
-                *ARGS,
-            ]
-        )
-        == 0
-    )
+    assert _sequences(root) == 0
     return root
 
 
@@ -132,59 +122,14 @@ def test_simulated_detections(seq_root):
 
 def test_rerun_resumes_and_refuses_other_settings(seq_root, tmp_path):
     before = {p: p.read_bytes() for p in seq_root.rglob("*") if p.is_file()}
-    assert (
-        cli.main(
-            [
-                "sequences",
-                "--objects",
-                "mug,can",
-                "--out",
-                str(seq_root),
-                "--occlusion",
-                "heavy",
-                "--seed",
-                "3",
-                *ARGS,
-            ]
-        )
-        == 0
-    )
+    assert _sequences(seq_root) == 0
     after = {p: p.read_bytes() for p in seq_root.rglob("*") if p.is_file()}
     assert before == after
     with pytest.raises(DatasetError):
-        cli.main(
-            [
-                "sequences",
-                "--objects",
-                "mug,can",
-                "--out",
-                str(seq_root),
-                "--occlusion",
-                "none",
-                "--seed",
-                "3",
-                *ARGS,
-            ]
-        )
+        _sequences(seq_root, occlusion="none")
     # same seed -> same bytes in a fresh folder
     other = tmp_path / "again"
-    assert (
-        cli.main(
-            [
-                "sequences",
-                "--objects",
-                "mug,can",
-                "--out",
-                str(other),
-                "--occlusion",
-                "heavy",
-                "--seed",
-                "3",
-                *ARGS,
-            ]
-        )
-        == 0
-    )
+    assert _sequences(other) == 0
     for p, data in before.items():
         assert (other / p.relative_to(seq_root)).read_bytes() == data
 

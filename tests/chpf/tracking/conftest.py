@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from chpf.geometry import axis_angle_to_matrix, project_points
+from tests.helpers import dot_head_model, onnx_model, write_bundle
 
 K_CAM = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
 OBJ_SIZE = 0.15  # metres, extent used for the synthetic boxes
@@ -72,45 +73,23 @@ def _template_encoder(size: int) -> bytes:
         helper.make_node("Sub", ["flat", "mean"], ["centred"]),
         helper.make_node("LpNormalization", ["centred"], ["embedding"], axis=1, p=2),
     ]
-    graph = helper.make_graph(
-        nodes,
+    return onnx_model(
         "template_encoder",
+        nodes,
         [helper.make_tensor_value_info("crops", TensorProto.UINT8, ["batch", size, size, 3])],
         [helper.make_tensor_value_info("embedding", TensorProto.FLOAT, ["batch", e])],
         [numpy_helper.from_array(np.array([-1, e], np.int64), "shape")],
     )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    return model.SerializeToString()
 
 
 def _template_head(e: int) -> bytes:
-    from onnx import TensorProto, helper, numpy_helper
+    from onnx import helper
 
-    nodes = [
-        helper.make_node("Mul", ["obs", "cand"], ["m"]),
-        helper.make_node("ReduceSum", ["m", "axes"], ["d"], keepdims=0),
+    logit = [
         helper.make_node("Sub", ["b", "d"], ["x"]),
         helper.make_node("Mul", ["x", "a"], ["logit"]),
-        helper.make_node("Sigmoid", ["logit"], ["p_misaligned"]),
     ]
-    graph = helper.make_graph(
-        nodes,
-        "template_head",
-        [
-            helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", e]),
-            helper.make_tensor_value_info("cand", TensorProto.FLOAT, ["batch", e]),
-        ],
-        [helper.make_tensor_value_info("p_misaligned", TensorProto.FLOAT, ["batch"])],
-        [
-            numpy_helper.from_array(np.array([1], np.int64), "axes"),
-            numpy_helper.from_array(np.array(HEAD_A, np.float32), "a"),
-            numpy_helper.from_array(np.array(HEAD_B, np.float32), "b"),
-        ],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    return model.SerializeToString()
+    return dot_head_model("template_head", e, logit, {"a": HEAD_A, "b": HEAD_B})
 
 
 _VIEWS: dict = {}
@@ -118,18 +97,13 @@ _VIEWS: dict = {}
 
 def write_template_bundle(root, shared: bool = True, size: int = TB_SIZE, k: int = TB_CODEBOOK):
     """Write a template bundle of the built-in TB_OBJECT into folder ``root``; returns root."""
-    import hashlib
-    import json
-
     import onnxruntime as ort
 
-    from chpf.bundle import FORMAT_VERSION
     from chpf.crops import CropSpec, render_crops
     from chpf.geometry import RotationGrid
     from chpf.objects import get_object, object_fingerprint
     from export.codebook import downsample_depth
 
-    root.mkdir(parents=True, exist_ok=True)
     obj = get_object(TB_OBJECT)
     spec = CropSpec.for_object(obj.diameter, size=size)
     grid = RotationGrid.uniform(k)
@@ -140,23 +114,18 @@ def write_template_bundle(root, shared: bool = True, size: int = TB_SIZE, k: int
     enc = _template_encoder(size)
     sess = ort.InferenceSession(enc, providers=["CPUExecutionProvider"])
     emb = sess.run(None, {"crops": views.rgb})[0].astype(np.float32)
-    e = emb.shape[1]
-    files = {"ae_encoder.onnx": enc, "ch_head.onnx": _template_head(e)}
-    if not shared:
-        files["ch_encoder.onnx"] = enc
-    for name, data in files.items():
-        (root / name).write_bytes(data)
-    np.savez(
-        root / "codebook.npz",
-        rotations=grid.rotations.astype(np.float32),
-        ae_embeddings=emb,
-        ch_embeddings=emb,
-        depth=downsample_depth(views.depth, 2).astype(np.float16),
-    )
-    names = [*files, "codebook.npz"]
-    manifest = {
-        "format_version": FORMAT_VERSION,
-        "object": {
+    return write_bundle(
+        root,
+        encoder=enc,
+        head=_template_head(emb.shape[1]),
+        ch_encoder=None if shared else enc,
+        codebook={
+            "rotations": grid.rotations.astype(np.float32),
+            "ae_embeddings": emb,
+            "ch_embeddings": emb,
+            "depth": downsample_depth(views.depth, 2).astype(np.float16),
+        },
+        obj={
             "name": obj.name,
             "obj_id": obj.obj_id,
             "diameter": obj.diameter,
@@ -164,22 +133,10 @@ def write_template_bundle(root, shared: bool = True, size: int = TB_SIZE, k: int
             "symmetries_continuous": [],
             "fingerprint": object_fingerprint(obj),
         },
-        "crop": spec.to_dict(),
-        "embedding_dim": e,
-        "codebook_size": k,
-        "ch_shares_ae_encoder": shared,
-        "files": {
-            "ae_encoder": "ae_encoder.onnx",
-            "ch_obs_encoder": None if shared else "ch_encoder.onnx",
-            "ch_head": "ch_head.onnx",
-            "codebook": "codebook.npz",
-        },
-        "sha256": {n: hashlib.sha256((root / n).read_bytes()).hexdigest() for n in names},
-        "training": {"note": "template bundle for tests (no training)"},
-        "created_by": "tests/chpf/tracking/conftest.py",
-    }
-    (root / "manifest.json").write_text(json.dumps(manifest, indent=1))
-    return root
+        crop=spec.to_dict(),
+        training={"note": "template bundle for tests (no training)"},
+        created_by="tests/chpf/tracking/conftest.py",
+    )
 
 
 @pytest.fixture(scope="session")

@@ -1,0 +1,96 @@
+"""Helpers shared by several test folders: hand-made ONNX graphs and model bundles.
+
+``onnx`` is imported inside the functions: callers skip with ``pytest.importorskip("onnx")``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def onnx_model(name: str, nodes: list, inputs: list, outputs: list, inits: list) -> bytes:
+    """Serialised ONNX model (opset 17, IR version 8) of one graph built with ``onnx.helper``."""
+    from onnx import helper
+
+    graph = helper.make_graph(nodes, name, inputs, outputs, inits)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    return model.SerializeToString()
+
+
+def dot_head_model(name: str, e: int, logit_nodes: list, consts: dict[str, float]) -> bytes:
+    """CH head ONNX model: obs (B,e), cand (B,e) float -> p_misaligned (B,) = sigmoid(logit).
+
+    ``d = <obs, cand>`` (B,) is computed first; ``logit_nodes`` map ``d`` and the float32
+    scalar initialisers ``consts`` (name -> value) to ``logit``."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    nodes = [
+        helper.make_node("Mul", ["obs", "cand"], ["m"]),
+        helper.make_node("ReduceSum", ["m", "axes"], ["d"], keepdims=0),
+        *logit_nodes,
+        helper.make_node("Sigmoid", ["logit"], ["p_misaligned"]),
+    ]
+    inits = [numpy_helper.from_array(np.array([1], np.int64), "axes")]
+    inits += [numpy_helper.from_array(np.array(v, np.float32), k) for k, v in consts.items()]
+    inputs = [
+        helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", e]),
+        helper.make_tensor_value_info("cand", TensorProto.FLOAT, ["batch", e]),
+    ]
+    outputs = [helper.make_tensor_value_info("p_misaligned", TensorProto.FLOAT, ["batch"])]
+    return onnx_model(name, nodes, inputs, outputs, inits)
+
+
+def write_bundle(
+    root: Path,
+    *,
+    encoder: bytes,
+    head: bytes,
+    ch_encoder: bytes | None,
+    codebook: dict[str, np.ndarray],
+    obj: dict,
+    crop: dict,
+    training: dict,
+    created_by: str,
+    compress: bool = False,
+) -> Path:
+    """Write a model bundle into folder ``root`` (created); returns root.
+
+    ``ch_encoder`` None: the CH shares the AE encoder. ``codebook``: the arrays of
+    codebook.npz (rotations (K,3,3), ae_embeddings (K,E), ch_embeddings, depth). ``obj``: the
+    manifest's object section, ``crop``: ``CropSpec.to_dict()``. The manifest lists every file
+    with its sha256."""
+    from chpf.bundle import FORMAT_VERSION
+
+    root.mkdir(parents=True, exist_ok=True)
+    shared = ch_encoder is None
+    files = {"ae_encoder.onnx": encoder, "ch_head.onnx": head}
+    if not shared:
+        files["ch_encoder.onnx"] = ch_encoder
+    for name, data in files.items():
+        (root / name).write_bytes(data)
+    (np.savez_compressed if compress else np.savez)(root / "codebook.npz", **codebook)
+    names = [*files, "codebook.npz"]
+    manifest = {
+        "format_version": FORMAT_VERSION,
+        "object": obj,
+        "crop": crop,
+        "embedding_dim": int(codebook["ae_embeddings"].shape[1]),
+        "codebook_size": len(codebook["rotations"]),
+        "ch_shares_ae_encoder": shared,
+        "files": {
+            "ae_encoder": "ae_encoder.onnx",
+            "ch_obs_encoder": None if shared else "ch_encoder.onnx",
+            "ch_head": "ch_head.onnx",
+            "codebook": "codebook.npz",
+        },
+        "sha256": {n: hashlib.sha256((root / n).read_bytes()).hexdigest() for n in names},
+        "training": training,
+        "created_by": created_by,
+    }
+    (root / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    return root
