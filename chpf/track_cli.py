@@ -109,7 +109,7 @@ def auc_table(dataset: Path, runs: dict[str, MethodRun], split: str, scenes: lis
 def stage_table(runs: dict[str, MethodRun]) -> str:
     """Mean ms per stage of the newly tracked frames, and the non-network share."""
     stages = ["crop", "encode", "ch_encode", "lookup", "head", "depth", "estimate", "resample"]
-    head = f"{'method':<11}" + "".join(f"{s:>9}" for s in stages) + f"{'total':>8}{'non-net':>8}"
+    head = f"{'method':<11}" + "".join(f" {s:>9}" for s in stages) + f" {'total':>8} {'non-net':>8}"
     lines = [head]
     for m, run in runs.items():
         if run.frames == 0:
@@ -118,8 +118,8 @@ def stage_table(runs: dict[str, MethodRun]) -> str:
         total = mean.get("total", 0.0)
         net = sum(mean.get(s, 0.0) for s in NETWORK_STAGES)
         share = (total - net) / total if total > 0 else float("nan")
-        cells = "".join(f"{mean[s]:>9.2f}" if s in mean else f"{'-':>9}" for s in stages)
-        lines.append(f"{m:<11}{cells}{total:>8.1f}{share:>8.0%}")
+        cells = "".join(f" {mean[s]:>9.2f}" if s in mean else f" {'-':>9}" for s in stages)
+        lines.append(f"{m:<11}{cells} {total:>8.1f} {share:>8.0%}")
     return "\n".join(lines)
 
 

@@ -2,7 +2,7 @@
 CH-PF and two baselines.
 
 The sequence is generated once with ``data_gen.sequences`` (BOP layout, simulated detector)
-into a cache folder (``$CHPF_CACHE_DIR`` or ``~/.cache/chpf``) keyed by the object's fingerprint
+into a cache folder (``$CHPF_CACHE`` or ``~/.cache/chpf``) keyed by the object's fingerprint
 and the seed, and reused on later runs.
 """
 
@@ -42,7 +42,7 @@ def shipped_bundle() -> Path:
 
 def cache_dir() -> Path:
     """Cache root for generated demo data."""
-    env = os.environ.get("CHPF_CACHE_DIR")
+    env = os.environ.get("CHPF_CACHE")
     return Path(env) if env else Path.home() / ".cache" / "chpf"
 
 

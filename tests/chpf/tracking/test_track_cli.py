@@ -172,7 +172,7 @@ def test_refusals(template_bundle, dataset, tmp_path, capsys):
 
 
 def test_demo_runs_chpf_and_two_baselines(template_bundle, tmp_path, capsys, monkeypatch):
-    monkeypatch.setenv("CHPF_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("CHPF_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "demo"
     code, lines = _run(
         capsys, "--demo", "--bundle", template_bundle, "--frames", 5, "--out", out, "--no-progress"
