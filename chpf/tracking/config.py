@@ -62,6 +62,7 @@ class TrackConfig:
     # runtime
     threads: int = 2  # onnxruntime intra-op threads
     spin: bool = False  # onnxruntime idle threads busy-wait (True starves the filter's numpy)
+    library_threads: int = 1  # OpenCV and BLAS threads (their idle workers slow onnxruntime)
     crop_size: int | None = None  # expected bundle crop size (None = any)
 
     def check(self, where: str = "tracking config") -> TrackConfig:
@@ -99,6 +100,8 @@ class TrackConfig:
             raise bad("rbpf_rotation_estimate", "must be argmax or mean")
         if self.threads < 1:
             raise bad("threads", "must be >= 1")
+        if self.library_threads < 1:
+            raise bad("library_threads", "must be >= 1")
         return self
 
 
