@@ -3,6 +3,9 @@
 The file is a JSON list of ``{"scene_id", "image_id", "category_id", "bbox": [x, y, w, h] px,
 "score", "time"}`` (extra keys such as ``"segmentation"`` are ignored). ``read_detections`` keeps
 the best-scoring box per (scene_id, image_id, category_id); ``category_id`` is the BOP obj_id.
+
+``SimulatedDetector`` makes such detections from ground truth (``chpf-gen-data sequences`` writes
+them; ``chpf-track`` runs it on datasets without a detections file). It is NOT a real detector.
 """
 
 from __future__ import annotations
@@ -10,12 +13,31 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from chpf.cli import atomic_write_text
 from chpf.errors import BopFormatError, DatasetError
 
-__all__ = ["read_detections", "write_detections"]
+if TYPE_CHECKING:
+    from chpf.bop import GtInfo
+
+__all__ = [
+    "SIMULATED_DETECTOR_DEFAULTS",
+    "SimulatedDetector",
+    "read_detections",
+    "write_detections",
+]
+
+# Noise of the simulated detector (fractions of the box size; log-scale size noise).
+SIMULATED_DETECTOR_DEFAULTS: dict[str, Any] = {
+    "center_noise": 0.05,
+    "size_noise": 0.08,
+    "miss_prob": 0.05,
+    "min_visib_fract": 0.1,
+    "score_range": [0.6, 1.0],
+}
 
 _INT_KEYS = ("scene_id", "image_id", "category_id")
 
@@ -79,3 +101,44 @@ def write_detections(path: str | Path, detections: list[dict[str, Any]]) -> None
         out.append(d)
     body = ",\n".join("  " + json.dumps(d, sort_keys=True) for d in out)
     atomic_write_text(path, "[\n" + body + ("\n]\n" if out else "]\n"))
+
+
+class SimulatedDetector:
+    """A simulated 2D detector: the visible ground-truth box with noise and missed frames.
+
+    ``cfg``: keys of ``SIMULATED_DETECTOR_DEFAULTS``. Not a real detector: it sees the ground
+    truth (``info.bbox_visib`` and ``info.visib_fract``).
+    """
+
+    def __init__(self, cfg: dict, rng: np.random.Generator) -> None:
+        self.cfg = cfg
+        self.rng = rng
+
+    def detect(
+        self, scene_id: int, im_id: int, obj_id: int, info: GtInfo, width: int, height: int
+    ) -> dict | None:
+        """A BOP detection dict for one object instance, or None (missed / too occluded)."""
+        c, rng = self.cfg, self.rng
+        miss = rng.random() < c["miss_prob"]
+        noise = rng.standard_normal(4)
+        score = float(rng.uniform(*c["score_range"]))
+        if miss or info.visib_fract < c["min_visib_fract"] or info.bbox_visib[2] <= 0:
+            return None
+        x, y, w, h = (float(v) for v in info.bbox_visib)
+        w, h = max(w, 1.0), max(h, 1.0)
+        cx = x + w / 2 + noise[0] * c["center_noise"] * w
+        cy = y + h / 2 + noise[1] * c["center_noise"] * h
+        w *= float(np.exp(noise[2] * c["size_noise"]))
+        h *= float(np.exp(noise[3] * c["size_noise"]))
+        x0, y0 = max(cx - w / 2, 0.0), max(cy - h / 2, 0.0)
+        x1, y1 = min(cx + w / 2, width - 1.0), min(cy + h / 2, height - 1.0)
+        if x1 - x0 < 1 or y1 - y0 < 1:
+            return None
+        return {
+            "scene_id": int(scene_id),
+            "image_id": int(im_id),
+            "category_id": int(obj_id),
+            "bbox": [round(x0, 2), round(y0, 2), round(x1 - x0, 2), round(y1 - y0, 2)],
+            "score": round(score, 4),
+            "time": 0.0,
+        }

@@ -15,6 +15,7 @@ from typing import Any
 
 import yaml
 
+from chpf.detections import SIMULATED_DETECTOR_DEFAULTS as _DET
 from chpf.errors import ConfigError
 
 Check = Callable[[Any, str], Any]  # (value, "file: section.key") -> normalised value
@@ -172,11 +173,11 @@ SCHEMA: dict[str, dict[str, tuple[Any, Check]]] = {
         "rgb_ext": ("png", _choice("png", "jpg")),
     },
     "detector": {
-        "center_noise": (0.05, _num(0.0, 1.0)),
-        "size_noise": (0.08, _num(0.0, 1.0)),
-        "miss_prob": (0.05, _num(0.0, 1.0)),
-        "min_visib_fract": (0.1, _num(0.0, 1.0)),
-        "score_range": ([0.6, 1.0], _range(0.0, 1.0)),
+        "center_noise": (_DET["center_noise"], _num(0.0, 1.0)),
+        "size_noise": (_DET["size_noise"], _num(0.0, 1.0)),
+        "miss_prob": (_DET["miss_prob"], _num(0.0, 1.0)),
+        "min_visib_fract": (_DET["min_visib_fract"], _num(0.0, 1.0)),
+        "score_range": (list(_DET["score_range"]), _range(0.0, 1.0)),
     },
 }
 

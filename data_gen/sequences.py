@@ -34,6 +34,7 @@ from tqdm import tqdm
 
 from chpf import bop
 from chpf.cli import atomic_write_bytes, atomic_write_text
+from chpf.detections import SimulatedDetector
 from chpf.errors import ConfigError, DatasetError
 from chpf.geometry import axis_angle_to_matrix, random_rotations
 from data_gen import augment
@@ -54,46 +55,6 @@ class SceneObject:
     obj: object  # chpf.objects.ObjectModel
     obj_id: int
     role: str  # target | distractor | occluder
-
-
-class SimulatedDetector:
-    """A simulated 2D detector: the visible ground-truth box with noise and missed frames.
-
-    ``cfg``: the ``detector`` section. Not a real detector: it sees the ground truth.
-    """
-
-    def __init__(self, cfg: dict, rng: np.random.Generator) -> None:
-        self.cfg = cfg
-        self.rng = rng
-
-    def detect(
-        self, scene_id: int, im_id: int, obj_id: int, info: bop.GtInfo, width: int, height: int
-    ) -> dict | None:
-        """A BOP detection dict for one object instance, or None (missed / too occluded)."""
-        c, rng = self.cfg, self.rng
-        miss = rng.random() < c["miss_prob"]
-        noise = rng.standard_normal(4)
-        score = float(rng.uniform(*c["score_range"]))
-        if miss or info.visib_fract < c["min_visib_fract"] or info.bbox_visib[2] <= 0:
-            return None
-        x, y, w, h = (float(v) for v in info.bbox_visib)
-        w, h = max(w, 1.0), max(h, 1.0)
-        cx = x + w / 2 + noise[0] * c["center_noise"] * w
-        cy = y + h / 2 + noise[1] * c["center_noise"] * h
-        w *= float(np.exp(noise[2] * c["size_noise"]))
-        h *= float(np.exp(noise[3] * c["size_noise"]))
-        x0, y0 = max(cx - w / 2, 0.0), max(cy - h / 2, 0.0)
-        x1, y1 = min(cx + w / 2, width - 1.0), min(cy + h / 2, height - 1.0)
-        if x1 - x0 < 1 or y1 - y0 < 1:
-            return None
-        return {
-            "scene_id": int(scene_id),
-            "image_id": int(im_id),
-            "category_id": int(obj_id),
-            "bbox": [round(x0, 2), round(y0, 2), round(x1 - x0, 2), round(y1 - y0, 2)],
-            "score": round(score, 4),
-            "time": 0.0,
-        }
 
 
 # ----------------------------------------------------------------------------- scene objects

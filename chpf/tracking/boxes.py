@@ -2,7 +2,7 @@
 
 1. ``--detections FILE``: a BOP detections JSON list ({"scene_id", "image_id", "category_id",
    "bbox": [x, y, w, h] px, "score", "time"}; the best-scoring box per image and object).
-2. Without a file: the simulated detector (``data_gen.sequences.SimulatedDetector``: the visible
+2. Without a file: the simulated detector (``chpf.detections.SimulatedDetector``: the visible
    ground-truth box of scene_gt_info.json with noise and missed frames; NOT a real detector).
    If the dataset root holds ``detections_sim.json`` (written by ``chpf-gen-data sequences``)
    its boxes are used; otherwise the detector runs on the fly on scene_gt_info.json.
@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from chpf.bop import BopDataset, BopScene, read_detections
+from chpf.detections import SIMULATED_DETECTOR_DEFAULTS, SimulatedDetector
 from chpf.errors import DatasetError
 from chpf.tracking.types import Box
 
@@ -57,9 +58,7 @@ class SimulatedBoxes(BoxSource):
     simulated = True
 
     def __init__(self, seed: int) -> None:
-        from data_gen.config import default_config  # lazy: only for datasets without detections
-
-        self.cfg = default_config()["detector"]
+        self.cfg = dict(SIMULATED_DETECTOR_DEFAULTS)
         self.seed = int(seed)
         self.detector = None
         self.description = (
@@ -68,8 +67,6 @@ class SimulatedBoxes(BoxSource):
         )
 
     def start_scene(self, scene: BopScene) -> None:
-        from data_gen.sequences import SimulatedDetector
-
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 4, scene.scene_id]))
         self.detector = SimulatedDetector(self.cfg, rng)
 
