@@ -230,36 +230,23 @@ def _install_framebuffer_switch(offscreen: Any) -> bool:
         return False
     from OpenGL import GL
 
-    def create(w: int, h: int, samples: int) -> tuple:
+    def framebuffer(w: int, h: int, samples: int) -> tuple:
+        """(fb, colour rb, depth rb); multisampled when ``samples`` > 0."""
         cb, db = GL.glGenRenderbuffers(2)
-        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, cb)
-        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_RGBA, w, h)
-        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, db)
-        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_DEPTH_COMPONENT24, w, h)
+        for rb, fmt in ((cb, GL.GL_RGBA), (db, GL.GL_DEPTH_COMPONENT24)):
+            GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, rb)
+            if samples > 0:
+                GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, samples, fmt, w, h)
+            else:
+                GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, fmt, w, h)
         fb = GL.glGenFramebuffers(1)
         GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, fb)
-        GL.glFramebufferRenderbuffer(
-            GL.GL_DRAW_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, cb
-        )
-        GL.glFramebufferRenderbuffer(
-            GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, db
-        )
-        cb_ms, db_ms = GL.glGenRenderbuffers(2)
-        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, cb_ms)
-        GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, samples, GL.GL_RGBA, w, h)
-        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, db_ms)
-        GL.glRenderbufferStorageMultisample(
-            GL.GL_RENDERBUFFER, samples, GL.GL_DEPTH_COMPONENT24, w, h
-        )
-        fb_ms = GL.glGenFramebuffers(1)
-        GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, fb_ms)
-        GL.glFramebufferRenderbuffer(
-            GL.GL_DRAW_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, cb_ms
-        )
-        GL.glFramebufferRenderbuffer(
-            GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, db_ms
-        )
-        return fb, cb, db, fb_ms, cb_ms, db_ms
+        for attachment, rb in ((GL.GL_COLOR_ATTACHMENT0, cb), (GL.GL_DEPTH_ATTACHMENT, db)):
+            GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, attachment, GL.GL_RENDERBUFFER, rb)
+        return fb, cb, db
+
+    def create(w: int, h: int, samples: int) -> tuple:
+        return framebuffer(w, h, 0) + framebuffer(w, h, samples)
 
     def delete(ids: tuple) -> None:
         fb, cb, db, fb_ms, cb_ms, db_ms = ids
