@@ -13,6 +13,10 @@ Observed crop of one sample (entry e of the observation pool, window of side P):
    warped out of the window (``chpf.crops.extract_crops`` with the composed affine);
 6. colour jitter, blur, noise on the crop.
 
+Autoencoder targets are the clean canonical renders of the entries' orientations; with
+``crop_jitter.ae_target: follow`` they are re-cut by the same jitter (shifted and scaled as the
+input), so that the embedding, and with it the likelihood L, tells a misplaced crop apart.
+
 Candidates (pairs) come from the codebook pool: the grid entry nearest to the hypothesis.
 """
 
@@ -24,7 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from chpf.crops import CropSpec, extract_crops
+from chpf.crops import CropSpec, crop_affines, extract_crops
 from chpf.geometry import RotationGrid, random_rotations
 from data_gen import augment
 from data_gen.pool import (
@@ -330,6 +334,31 @@ class Composer:
             )
         return out
 
+    def follow_jitter(
+        self, target: np.ndarray, mask: np.ndarray, e: np.ndarray, t_est: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Centred clean targets (N,S,S,3) and masks (N,S,S) of entries e re-cut as the crops
+        at the jittered translations t_est (N,3) see them: crop(t_est) pixel -> image pixel ->
+        crop(t) pixel, the similarity that shifts and scales the object like the input."""
+        t = np.asarray(self.obs.t)[e]
+        K = np.asarray(self.obs.K)[e]
+        size = (self.S, self.S)
+        out_rgb, out_mask = np.empty_like(target), np.empty_like(mask)
+        for i in range(len(e)):
+            a_est, a_true = (
+                np.vstack([a, [0.0, 0.0, 1.0]])
+                for a in (
+                    crop_affines(t_est[i], K[i], self.spec)[0],
+                    crop_affines(t[i], K[i], self.spec)[0],
+                )
+            )
+            M = (np.linalg.inv(a_true) @ a_est)[:2]
+            inv = cv2.WARP_INVERSE_MAP
+            out_rgb[i] = cv2.warpAffine(target[i], M, size, flags=cv2.INTER_LINEAR | inv)
+            m = mask[i].view(np.uint8)
+            out_mask[i] = cv2.warpAffine(m, M, size, flags=cv2.INTER_NEAREST | inv).view(bool)
+        return out_rgb, out_mask
+
     def ae(self, rng: np.random.Generator, n: int, debug: bool = False) -> dict:
         """n autoencoder samples (spec fields; with ``debug`` also input masks, entry, t_est)."""
         obs = self.observed(rng, n, debug)
@@ -339,6 +368,8 @@ class Composer:
         tmask = np.empty((n, self.S, self.S), bool)
         target[order] = self.obs.clean_rgb[e[order]]
         tmask[order] = self.obs.clean_mask[e[order]]
+        if self.cfg["crop_jitter"]["ae_target"] == "follow":
+            target, tmask = self.follow_jitter(target, tmask, e, obs["t_est"])
         out = {
             "input_rgb": obs["rgb"],
             "target_rgb": target,

@@ -136,6 +136,7 @@ SCHEMA: dict[str, dict[str, tuple[Any, Check]]] = {
     "crop_jitter": {
         "xy_sigma": (0.04, _num(0.0, 1.0)),
         "z_sigma": (0.05, _num(0.0, 0.5)),
+        "ae_target": ("follow", _choice("follow", "centred")),
     },
     "pairs": {
         "positive_share": (0.5, _num(0.0, 1.0)),

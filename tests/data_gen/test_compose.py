@@ -146,7 +146,7 @@ def test_occlusion_hides_the_configured_fraction(composer):
 
 
 def test_ae_targets(composer):
-    comp, _ = composer("ae")
+    comp, _ = composer("ae", "mug", "crop_jitter.ae_target=centred")
     out = comp.ae(np.random.default_rng(6), 20, debug=True)
     e = out["entry"]
     np.testing.assert_array_equal(out["target_rgb"], np.asarray(comp.obs.clean_rgb)[e])
@@ -159,3 +159,19 @@ def test_ae_targets(composer):
     # the input is the observed crop: background around the object, not black
     bg = ~out["target_mask"]
     assert out["input_rgb"][bg].mean() > 5
+
+
+def test_followed_ae_targets_are_cut_like_the_jittered_input(composer):
+    """ae_target=follow: the target shows the object where the jittered input crop has it."""
+    jitter = ("crop_jitter.xy_sigma=0.15", "crop_jitter.z_sigma=0.15", "occlusion.prob=0.0")
+    ious = {}
+    for mode in ("follow", "centred"):
+        comp, _ = composer("ae", "mug", f"crop_jitter.ae_target={mode}", *jitter)
+        out = comp.ae(np.random.default_rng(7), 30, debug=True)
+        ious[mode] = np.array(
+            [_iou(a, b) for a, b in zip(out["target_mask"], out["input_mask"], strict=True)]
+        )
+        shift = np.abs(out["t_est"] - np.asarray(comp.obs.t)[out["entry"]]).sum(1)
+        assert shift.min() > 0  # every input really is jittered
+    assert np.median(ious["follow"]) > 0.85
+    assert np.median(ious["follow"]) > np.median(ious["centred"]) + 0.1
