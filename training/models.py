@@ -4,9 +4,12 @@ All model configs are plain dicts (JSON/YAML friendly) so that ``export`` can re
 from a checkpoint's hyper-parameters:
 
 * encoder config: ``{"channels": [32, 64, 128, 256], "kernel": 5, "embedding_dim": 128,
-  "size": 64}`` -- ``len(channels)`` stride-2 convolutions (padding ``kernel // 2``, ReLU), a
-  flatten and one linear layer to the raw (un-normalised) embedding. ``size`` must be divisible
-  by ``2 ** len(channels)``.
+  "size": 64, "activation": "relu", "decoder_norm": "none"}`` -- ``len(channels)`` stride-2
+  convolutions (padding ``kernel // 2``, then ``activation``: relu or leaky_relu with slope
+  0.2), a flatten and one linear layer to the raw (un-normalised) embedding. ``size`` must be
+  divisible by ``2 ** len(channels)``. ``decoder_norm: batch`` puts batch normalisation after
+  each decoder layer (training only: the decoder is never exported); with leaky_relu it keeps
+  the autoencoder off the "mean image" plateau where the plain version can stall.
 * head config: ``{"hidden": [256, 128]}`` -- three fully connected layers to one logit.
 * classifier config: ``{"encoder": <encoder config>, "head": <head config>,
   "share_twin": True, "shares_ae_encoder": False}``.
@@ -33,7 +36,11 @@ DEFAULT_ENCODER: dict[str, Any] = {
     "kernel": 5,
     "embedding_dim": 128,
     "size": 64,
+    "activation": "relu",
+    "decoder_norm": "none",
 }
+ACTIVATIONS = ("relu", "leaky_relu")
+DECODER_NORMS = ("none", "batch")
 DEFAULT_HEAD: dict[str, Any] = {"hidden": [256, 128]}
 
 
@@ -42,6 +49,8 @@ def encoder_config(
     kernel: int = 5,
     embedding_dim: int = 128,
     size: int = 64,
+    activation: str = "relu",
+    decoder_norm: str = "none",
 ) -> dict[str, Any]:
     """Validated encoder config dict (see module docstring); ConfigError on bad values."""
     cfg = {
@@ -49,6 +58,8 @@ def encoder_config(
         "kernel": int(kernel),
         "embedding_dim": int(embedding_dim),
         "size": int(size),
+        "activation": str(activation),
+        "decoder_norm": str(decoder_norm),
     }
     _check_encoder_config(cfg)
     return cfg
@@ -68,6 +79,14 @@ def _check_encoder_config(cfg: Mapping[str, Any]) -> None:
         raise ConfigError(f"encoder config: kernel must be odd and >= 1, got {k}")
     if e < 1:
         raise ConfigError(f"encoder config: embedding_dim must be >= 1, got {e}")
+    act = cfg.get("activation", DEFAULT_ENCODER["activation"])
+    if act not in ACTIVATIONS:
+        raise ConfigError(f"encoder config: activation must be one of {ACTIVATIONS}, got {act!r}")
+    norm = cfg.get("decoder_norm", DEFAULT_ENCODER["decoder_norm"])
+    if norm not in DECODER_NORMS:
+        raise ConfigError(
+            f"encoder config: decoder_norm must be one of {DECODER_NORMS}, got {norm!r}"
+        )
     if size % (2 ** len(ch)) != 0:
         raise ConfigError(
             f"encoder config: size {size} is not divisible by 2**{len(ch)} (one per conv layer)"
@@ -80,6 +99,13 @@ def _full_encoder_config(cfg: Mapping[str, Any] | None) -> dict[str, Any]:
     _check_encoder_config(merged)
     merged["channels"] = [int(c) for c in merged["channels"]]
     return merged
+
+
+def activation(cfg: Mapping[str, Any]) -> nn.Module:
+    """The config's activation module (ReLU, or LeakyReLU with slope 0.2)."""
+    if cfg["activation"] == "leaky_relu":
+        return nn.LeakyReLU(0.2, inplace=True)
+    return nn.ReLU(inplace=True)
 
 
 class Preprocess(nn.Module):
@@ -110,7 +136,7 @@ class Encoder(nn.Module):
         layers: list[nn.Module] = []
         c_in = 3
         for c in ch:
-            layers += [nn.Conv2d(c_in, c, k, stride=2, padding=k // 2), nn.ReLU(inplace=True)]
+            layers += [nn.Conv2d(c_in, c, k, stride=2, padding=k // 2), activation(cfg)]
             c_in = c
         self.convs = nn.Sequential(*layers)
         self.out_hw = cfg["size"] // (2 ** len(ch))
@@ -141,18 +167,21 @@ class Decoder(nn.Module):
         self.in_hw = cfg["size"] // (2 ** len(ch))
         self.in_ch = ch[0]
         self.fc = nn.Linear(cfg["embedding_dim"], ch[0] * self.in_hw * self.in_hw)
+        self.fc_act = activation(cfg)
         layers: list[nn.Module] = []
         outs = [*ch[1:], ch[-1]]
         for c_in, c_out in zip(ch, outs, strict=True):
-            layers += [
-                nn.ConvTranspose2d(c_in, c_out, k, stride=2, padding=k // 2, output_padding=1),
-                nn.ReLU(inplace=True),
-            ]
+            layers.append(
+                nn.ConvTranspose2d(c_in, c_out, k, stride=2, padding=k // 2, output_padding=1)
+            )
+            if cfg["decoder_norm"] == "batch":
+                layers.append(nn.BatchNorm2d(c_out))
+            layers.append(activation(cfg))
         layers.append(nn.Conv2d(outs[-1], 3, k, padding=k // 2))
         self.deconvs = nn.Sequential(*layers)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
-        h = F.relu(self.fc(z)).view(-1, self.in_ch, self.in_hw, self.in_hw)
+        h = self.fc_act(self.fc(z)).view(-1, self.in_ch, self.in_hw, self.in_hw)
         return torch.sigmoid(self.deconvs(h))
 
 

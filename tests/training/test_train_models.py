@@ -32,7 +32,7 @@ def test_shapes_and_preprocess() -> None:
     emb = NormalizedEmbedder(build_encoder(TINY))(crops)
     assert torch.allclose(emb.norm(dim=1), torch.ones(5), atol=1e-5)
     enc = Encoder((8, 16), 3, 16, 16)
-    assert enc.config == TINY
+    assert enc.config == {**TINY, "activation": "relu", "decoder_norm": "none"}
 
 
 def test_classifier_twin_sharing() -> None:
@@ -56,6 +56,25 @@ def test_bad_configs() -> None:
         build_encoder({"kernel": 4})
     with pytest.raises(ConfigError, match="freeze_encoder"):
         CHLitModule({"encoder": TINY}, freeze_encoder=True)
+    with pytest.raises(ConfigError, match="activation"):
+        build_encoder({"activation": "gelu"})
+    with pytest.raises(ConfigError, match="decoder_norm"):
+        build_autoencoder({"decoder_norm": "layer"})
+
+
+def test_activation_and_decoder_norm_options() -> None:
+    """leaky_relu reaches the encoder and the decoder; decoder_norm adds batch norms to the
+    decoder only; configs without the keys (older checkpoints) build the plain ReLU network."""
+    plain = build_autoencoder(TINY)
+    leaky = build_autoencoder({**TINY, "activation": "leaky_relu", "decoder_norm": "batch"})
+    kinds = {type(m) for m in plain.modules()}
+    assert torch.nn.ReLU in kinds and torch.nn.LeakyReLU not in kinds
+    assert torch.nn.BatchNorm2d not in kinds
+    assert not any(isinstance(m, torch.nn.ReLU) for m in leaky.modules())
+    assert any(isinstance(m, torch.nn.LeakyReLU) for m in leaky.encoder.modules())
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in leaky.encoder.modules())
+    assert sum(isinstance(m, torch.nn.BatchNorm2d) for m in leaky.decoder.modules()) == 2
+    assert leaky(torch.rand(2, 3, 16, 16))[0].shape == (2, 3, 16, 16)
 
 
 def test_ae_loss_goes_down_on_fixed_batch(pattern_images) -> None:

@@ -1,0 +1,22 @@
+"""The tracking benchmark's timing and table (on the template bundle, a few frames)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from chpf.benchmarks.track_bench import bench_method, format_table
+from chpf.bundle import Bundle
+from chpf.tracking.tracker import Tracker
+
+
+def test_bench_method_times_every_frame_and_prints_a_row(template_bundle, rendered_sequence):
+    bundle = Bundle.load(template_bundle)
+    seq = rendered_sequence
+    frames = (seq.rgb, seq.depth, seq.K, [seq.box(i) for i in range(len(seq))])
+    row = bench_method(Tracker.from_bundle(bundle, method="chpf"), frames, n_frames=6, warmup=2)
+    assert 0 < row["median"] <= row["p90"] and row["wall"] > 0
+    assert np.isclose(row["fps"], 1000.0 / row["wall"])
+    assert row["network"] >= row["encode"] > 0 and 0 <= row["non_network_share"] < 1
+    table = format_table({"chpf": row}).splitlines()
+    assert "med ms" in table[0] and "p90 ms" in table[0]
+    assert table[2].split()[:2] == ["chpf", f"{row['fps']:.1f}"]
