@@ -231,14 +231,17 @@ def test_shipped_bundle_likelihoods_rank_the_true_pose(sequence_renderer):
     assert s.L[0] > rand.L.max() and s.C[0] < np.percentile(rand.C, 5)
 
 
-def test_shipped_bundle_e2e_tracks_an_unoccluded_sequence(sequence_renderer):
+@pytest.mark.parametrize("method", ["e2e"])
+def test_shipped_bundle_tracks_an_unoccluded_sequence(sequence_renderer, method):
+    """MCL+E2E starts from the detection boxes alone and reaches a small ADD-S with the trained
+    networks (CH-PF and PoseRBPF do not yet with the shipped mug bundle: issue #5)."""
     bundle = _shipped_bundle()
     name = bundle.obj_info.name
     seq = sequence_renderer(30, name=name, z=3.0 * bundle.obj_info.diameter)
-    tracker = Tracker.from_bundle(bundle, method="e2e", seed=0)
+    tracker = Tracker.from_bundle(bundle, method=method, seed=0)
     pts = get_object(name).points
     errs = []
     for i in range(len(seq)):
         r = tracker.step(seq.rgb[i], K=seq.K, box=seq.box(i))
         errs.append(adds(pts, r.R, r.t, seq.R[i], seq.t[i]))
-    assert np.median(errs) < 0.1 * bundle.obj_info.diameter, errs
+    assert np.median(errs[10:]) < 0.1 * bundle.obj_info.diameter, (method, np.round(errs, 3))
