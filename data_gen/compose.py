@@ -342,21 +342,14 @@ class Composer:
         crop(t) pixel, the similarity that shifts and scales the object like the input."""
         t = np.asarray(self.obs.t)[e]
         K = np.asarray(self.obs.K)[e]
-        size = (self.S, self.S)
+        true_crops = np.stack([crop_affines(t[i], K[i], self.spec)[0] for i in range(len(e))])
+        M = crop_to_window_affines(t_est, K, true_crops, self.spec)  # "window" = crop at t
+        size, inv = (self.S, self.S), cv2.WARP_INVERSE_MAP
         out_rgb, out_mask = np.empty_like(target), np.empty_like(mask)
         for i in range(len(e)):
-            a_est, a_true = (
-                np.vstack([a, [0.0, 0.0, 1.0]])
-                for a in (
-                    crop_affines(t_est[i], K[i], self.spec)[0],
-                    crop_affines(t[i], K[i], self.spec)[0],
-                )
-            )
-            M = (np.linalg.inv(a_true) @ a_est)[:2]
-            inv = cv2.WARP_INVERSE_MAP
-            out_rgb[i] = cv2.warpAffine(target[i], M, size, flags=cv2.INTER_LINEAR | inv)
+            out_rgb[i] = cv2.warpAffine(target[i], M[i], size, flags=cv2.INTER_LINEAR | inv)
             m = mask[i].view(np.uint8)
-            out_mask[i] = cv2.warpAffine(m, M, size, flags=cv2.INTER_NEAREST | inv).view(bool)
+            out_mask[i] = cv2.warpAffine(m, M[i], size, flags=cv2.INTER_NEAREST | inv).view(bool)
         return out_rgb, out_mask
 
     def ae(self, rng: np.random.Generator, n: int, debug: bool = False) -> dict:

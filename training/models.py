@@ -101,7 +101,7 @@ def _full_encoder_config(cfg: Mapping[str, Any] | None) -> dict[str, Any]:
     return merged
 
 
-def activation(cfg: Mapping[str, Any]) -> nn.Module:
+def make_activation(cfg: Mapping[str, Any]) -> nn.Module:
     """The config's activation module (ReLU, or LeakyReLU with slope 0.2)."""
     if cfg["activation"] == "leaky_relu":
         return nn.LeakyReLU(0.2, inplace=True)
@@ -136,7 +136,7 @@ class Encoder(nn.Module):
         layers: list[nn.Module] = []
         c_in = 3
         for c in ch:
-            layers += [nn.Conv2d(c_in, c, k, stride=2, padding=k // 2), activation(cfg)]
+            layers += [nn.Conv2d(c_in, c, k, stride=2, padding=k // 2), make_activation(cfg)]
             c_in = c
         self.convs = nn.Sequential(*layers)
         self.out_hw = cfg["size"] // (2 ** len(ch))
@@ -167,7 +167,7 @@ class Decoder(nn.Module):
         self.in_hw = cfg["size"] // (2 ** len(ch))
         self.in_ch = ch[0]
         self.fc = nn.Linear(cfg["embedding_dim"], ch[0] * self.in_hw * self.in_hw)
-        self.fc_act = activation(cfg)
+        self.fc_act = make_activation(cfg)
         layers: list[nn.Module] = []
         outs = [*ch[1:], ch[-1]]
         for c_in, c_out in zip(ch, outs, strict=True):
@@ -176,7 +176,7 @@ class Decoder(nn.Module):
             )
             if cfg["decoder_norm"] == "batch":
                 layers.append(nn.BatchNorm2d(c_out))
-            layers.append(activation(cfg))
+            layers.append(make_activation(cfg))
         layers.append(nn.Conv2d(outs[-1], 3, k, padding=k // 2))
         self.deconvs = nn.Sequential(*layers)
 
