@@ -17,6 +17,10 @@ Autoencoder targets are the clean canonical renders of the entries' orientations
 ``crop_jitter.ae_target: follow`` they are re-cut by the same jitter (shifted and scaled as the
 input), so that the embedding, and with it the likelihood L, tells a misplaced crop apart.
 
+Empty crops (``empty_crops``): a share of ae samples and of pair negatives skip step 3 (and the
+occluder), i.e. the crop a particle far off the object would see; their ae target is empty
+(black, no mask) and their pair label misaligned.
+
 Candidates (pairs) come from the codebook pool: the grid entry nearest to the hypothesis.
 """
 
@@ -154,9 +158,10 @@ class Composer:
         return augment.random_shape(rng, side, self.bg.textures)
 
     def compose_window(
-        self, e: int, rng: np.random.Generator
+        self, e: int, rng: np.random.Generator, with_object: bool = True
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        """Window image (P,P,3) u8 of pool entry ``e`` with background, clutter, occluder.
+        """Window image (P,P,3) u8 of pool entry ``e`` with background, clutter, occluder;
+        ``with_object=False`` gives background and clutter only (an empty crop).
 
         Returns (window, object mask (P,P), visible object mask (P,P), visib_fract).
         """
@@ -173,6 +178,9 @@ class Composer:
             rgb, m = self._occluder_object(rng, side)
             y0, x0 = (int(v) for v in rng.integers(-side // 2, P - side // 2, 2))
             augment.paste(win, rgb, m, y0, x0)
+        if not with_object:
+            empty = np.zeros((P, P), bool)
+            return win, empty, empty, 0.0
         L = self.obs.rgb.shape[1]
         light = int(rng.integers(0, L)) if L > 1 else 0
         a = self.obs.alpha[e]
@@ -225,11 +233,15 @@ class Composer:
         return t_est
 
     def observed(
-        self, rng: np.random.Generator, n: int, debug: bool = False
+        self,
+        rng: np.random.Generator,
+        n: int,
+        debug: bool = False,
+        empty: np.ndarray | None = None,
     ) -> dict[str, np.ndarray]:
         """n augmented observed crops: rgb (n,S,S,3) u8, entry (n,), visib_fract (n,) f32,
         t_est (n,3); with ``debug`` also mask / visible_mask (n,S,S) bool crops (un-augmented
-        geometry, nearest-neighbour warps)."""
+        geometry, nearest-neighbour warps). ``empty`` (n,) bool: crops without the object."""
         S = self.S
         e = rng.integers(0, len(self.obs), n)
         t_est = self.jittered_translations(e, rng)
@@ -241,7 +253,8 @@ class Composer:
         masks = np.empty((n, S, S), bool) if debug else None
         vmasks = np.empty((n, S, S), bool) if debug else None
         for i in range(n):
-            win, obj_mask, visible, visib[i] = self.compose_window(int(e[i]), rng)
+            with_object = empty is None or not empty[i]
+            win, obj_mask, visible, visib[i] = self.compose_window(int(e[i]), rng, with_object)
             crop = extract_crops(win, M[i : i + 1], S)[0]
             rgb[i] = augment.augment_crop(crop, rng, self.cfg)
             if debug:
@@ -305,7 +318,8 @@ class Composer:
         aligned = np.zeros(n, np.uint8)
         aligned[:n_pos] = 1
         aligned = rng.permutation(aligned)
-        obs = self.observed(rng, n, debug)
+        empty = (aligned == 0) & (rng.random(n) < self.cfg["empty_crops"]["pairs_negative_share"])
+        obs = self.observed(rng, n, debug, empty)
         R_true = np.asarray(self.obs.R_allo)[obs["entry"]]
         idx, ang = self.candidates(R_true, aligned, rng)
         order = np.argsort(idx, kind="stable")  # sorted reads from the memory-mapped pool
@@ -354,7 +368,8 @@ class Composer:
 
     def ae(self, rng: np.random.Generator, n: int, debug: bool = False) -> dict:
         """n autoencoder samples (spec fields; with ``debug`` also input masks, entry, t_est)."""
-        obs = self.observed(rng, n, debug)
+        empty = rng.random(n) < self.cfg["empty_crops"]["ae_share"]
+        obs = self.observed(rng, n, debug, empty)
         e = obs["entry"]
         order = np.argsort(e, kind="stable")
         target = np.empty((n, self.S, self.S, 3), np.uint8)
@@ -363,6 +378,7 @@ class Composer:
         tmask[order] = self.obs.clean_mask[e[order]]
         if self.cfg["crop_jitter"]["ae_target"] == "follow":
             target, tmask = self.follow_jitter(target, tmask, e, obs["t_est"])
+        target[empty], tmask[empty] = 0, False
         out = {
             "input_rgb": obs["rgb"],
             "target_rgb": target,

@@ -138,6 +138,10 @@ SCHEMA: dict[str, dict[str, tuple[Any, Check]]] = {
         "z_sigma": (0.05, _num(0.0, 0.5)),
         "ae_target": ("follow", _choice("follow", "centred")),
     },
+    "empty_crops": {
+        "ae_share": (0.05, _num(0.0, 1.0)),
+        "pairs_negative_share": (0.15, _num(0.0, 1.0)),
+    },
     "pairs": {
         "positive_share": (0.5, _num(0.0, 1.0)),
         "pos_rot_sigma_deg": (5.0, _num(0.0, 90.0)),
@@ -194,6 +198,7 @@ SAMPLE_SECTIONS = (
     "noise",
     "blur",
     "crop_jitter",
+    "empty_crops",
     "shards",
 )
 PAIRS_SECTIONS = (*SAMPLE_SECTIONS, "pairs")

@@ -120,7 +120,13 @@ def test_window_is_the_trackers_crop(composer):
 
 
 def test_occlusion_hides_the_configured_fraction(composer):
-    comp, _ = composer("ae", "mug", "occlusion.prob=1.0", "occlusion.fraction_range=[0.4, 0.4]")
+    comp, _ = composer(
+        "ae",
+        "mug",
+        "occlusion.prob=1.0",
+        "occlusion.fraction_range=[0.4, 0.4]",
+        "empty_crops.ae_share=0.0",
+    )
     rng = np.random.default_rng(4)
     vis = []
     for e in range(40):
@@ -140,13 +146,19 @@ def test_occlusion_hides_the_configured_fraction(composer):
     crop_vis = out["input_visible_mask"].sum((1, 2)) / out["input_mask"].sum((1, 2))
     assert np.median(np.abs(crop_vis - out["visib_fract"])) < 0.05
     # heavy occlusion is still kept
-    comp2, _ = composer("pairs", "mug", "occlusion.prob=1.0", "occlusion.fraction_range=[0.7, 0.7]")
+    comp2, _ = composer(
+        "pairs",
+        "mug",
+        "occlusion.prob=1.0",
+        "occlusion.fraction_range=[0.7, 0.7]",
+        "empty_crops.pairs_negative_share=0.0",
+    )
     out2 = comp2.pairs(np.random.default_rng(5), 40)
     assert np.median(out2["visib_fract"]) < 0.4 and out2["aligned"].sum() == 20
 
 
 def test_ae_targets(composer):
-    comp, _ = composer("ae", "mug", "crop_jitter.ae_target=centred")
+    comp, _ = composer("ae", "mug", "crop_jitter.ae_target=centred", "empty_crops.ae_share=0.0")
     out = comp.ae(np.random.default_rng(6), 20, debug=True)
     e = out["entry"]
     np.testing.assert_array_equal(out["target_rgb"], np.asarray(comp.obs.clean_rgb)[e])
@@ -163,7 +175,12 @@ def test_ae_targets(composer):
 
 def test_followed_ae_targets_are_cut_like_the_jittered_input(composer):
     """ae_target=follow: the target shows the object where the jittered input crop has it."""
-    jitter = ("crop_jitter.xy_sigma=0.15", "crop_jitter.z_sigma=0.15", "occlusion.prob=0.0")
+    jitter = (
+        "crop_jitter.xy_sigma=0.15",
+        "crop_jitter.z_sigma=0.15",
+        "occlusion.prob=0.0",
+        "empty_crops.ae_share=0.0",
+    )
     ious = {}
     for mode in ("follow", "centred"):
         comp, _ = composer("ae", "mug", f"crop_jitter.ae_target={mode}", *jitter)
@@ -175,3 +192,14 @@ def test_followed_ae_targets_are_cut_like_the_jittered_input(composer):
         assert shift.min() > 0  # every input really is jittered
     assert np.median(ious["follow"]) > 0.85
     assert np.median(ious["follow"]) > np.median(ious["centred"]) + 0.1
+
+
+def test_empty_pair_negatives_hold_no_object(composer):
+    """A share of the negatives shows background and clutter only (a particle far off)."""
+    comp, _ = composer("pairs", "mug", "empty_crops.pairs_negative_share=0.5")
+    out = comp.pairs(np.random.default_rng(8), 60, debug=True)
+    empty = out["visib_fract"] == 0
+    assert 5 <= empty.sum() <= 25
+    assert np.all(out["aligned"][empty] == 0)
+    assert not out["obs_mask"][empty].any() and out["obs_mask"][~empty].sum((1, 2)).min() > 0
+    assert out["obs_rgb"][empty].std() > 5  # background, not a black crop

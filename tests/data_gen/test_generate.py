@@ -160,12 +160,18 @@ def test_refuses_folder_of_another_config(pairs_ref, tmp_path, make_args, monkey
 
 def test_ae_dataset(tmp_path, make_args):
     out = tmp_path / "ae"
-    _gen("ae", out, make_args, n=50)
+    _gen("ae", out, make_args, n=50, sets=("empty_crops.ae_share=0.2",))
     ds = ShardDataset(out)
     assert ds.kind == "ae" and len(ds) == 50
     a = ds.load_shard(0)
     for k, (dt, shp) in FIELDS["ae"].items():
         assert a[k].dtype == dt and a[k].shape == (40, *shp(32))
+    # empty crops (a particle far off the object): textured input, black target, no mask
+    empty = a["visib_fract"] == 0
+    assert 2 <= empty.sum() <= 16
+    assert a["target_rgb"][empty].max() == 0 and not a["target_mask"][empty].any()
+    assert a["input_rgb"][empty].std() > 5
+    a = {k: v[~empty] for k, v in a.items()}
     assert a["target_mask"].sum((1, 2)).min() > 50
     # the target is clean: black outside its silhouette (anti-aliased, bilinearly re-cut)
     import cv2
