@@ -102,13 +102,17 @@ def evaluate_ae(
     t0 = time.perf_counter()
     cb_emb = embed(ae.encoder, codebook["crops"])
     t_cb = time.perf_counter() - t0
-    data = load_samples(data_dir, "ae", ["input_rgb", "target_rgb", "R_allo"], max_samples, seed)
+    keys = ["input_rgb", "target_rgb", "R_allo", "visib_fract"]
+    data = load_samples(data_dir, "ae", keys, max_samples, seed)
+    shows_object = data["visib_fract"] > 0  # retrieval is undefined for empty crops
+    data = {k: v[shows_object] for k, v in data.items()}
     sym_d = list(codebook["symmetries_discrete"])
     sym_c = [{"axis": a} for a in codebook["symmetries_continuous_axes"]]
     cb_R = codebook["rotations"].astype(np.float64)
     out: dict[str, Any] = {
         "codebook_size": int(cb_R.shape[0]),
         "n_samples": int(data["R_allo"].shape[0]),
+        "n_empty_skipped": int((~shows_object).sum()),
         "codebook_embed_s": round(t_cb, 2),
     }
     for key, label in (("input_rgb", "augmented"), ("target_rgb", "clean")):
@@ -136,12 +140,16 @@ def evaluate_pairs(
     visib = data["visib_fract"]
     occl = pos & (visib >= occluded_visib[0]) & (visib <= occluded_visib[1])
     clear = pos & (visib >= clear_visib)
-    hard = (y == 1) & (data["angle_deg"] >= hard_deg[0]) & (data["angle_deg"] <= hard_deg[1])
+    empty = visib <= 0  # empty crops (no object): negatives by construction
+    hard = (
+        (y == 1) & ~empty & (data["angle_deg"] >= hard_deg[0]) & (data["angle_deg"] <= hard_deg[1])
+    )
     out: dict[str, Any] = {
         "n_pairs": int(y.size),
         "n_positives": int(pos.sum()),
         "n_hard_negatives": int(hard.sum()),
         "n_occluded_positives": int(occl.sum()),
+        "n_empty_negatives": int(empty.sum()),
     }
     if ch_path:
         ch, info = load_classifier(ch_path)
@@ -149,7 +157,7 @@ def evaluate_pairs(
         m = classifier_metrics(logit, y, data["angle_deg"], visib, hard_deg, occluded_visib)
         out["classifier"] = {
             "shares_ae_encoder": bool(info.get("shares_ae_encoder", False)),
-            **{k: m[k] for k in ("acc", "auc", "auc_hard", "aligned_rate_pos")},
+            **{k: m[k] for k in ("acc", "auc", "auc_hard", "aligned_rate_pos", "empty_rejected")},
             "aligned_rate_occluded": m["aligned_rate_occluded"],
         }
     if ae_path:
@@ -161,12 +169,13 @@ def evaluate_pairs(
             return float(cos[mask].mean()) if mask.any() else float("nan")
 
         out["ae_cosine"] = {
-            "auc": roc_auc(-cos, y),
+            "auc": roc_auc(-cos[~empty], y[~empty]),
             "auc_hard": roc_auc(-cos[sel], y[sel]) if hard.any() and pos.any() else float("nan"),
             "mean_pos_clear": _mean(clear),
             "mean_pos_occluded": _mean(occl),
             "mean_neg": _mean(y == 1),
             "mean_hard_neg": _mean(hard),
+            "mean_empty": _mean(empty),
             "drop_occluded": _mean(clear) - _mean(occl),
         }
     return out
@@ -179,7 +188,7 @@ def format_report(res: dict[str, Any]) -> str:
         a = res["ae"]
         lines.append(
             f"autoencoder retrieval vs {a['codebook_size']}-entry codebook, "
-            f"{a['n_samples']} held-out crops:"
+            f"{a['n_samples']} held-out crops ({a['n_empty_skipped']} empty crops skipped):"
         )
         for label in ("augmented", "clean"):
             s = a[label]
@@ -191,7 +200,8 @@ def format_report(res: dict[str, Any]) -> str:
         p = res["pairs"]
         lines.append(
             f"pairs: {p['n_pairs']} ({p['n_positives']} positives, {p['n_hard_negatives']} hard "
-            f"negatives 20-45 deg, {p['n_occluded_positives']} positives 30-60% visible)"
+            f"negatives 20-45 deg, {p['n_occluded_positives']} positives 30-60% visible, "
+            f"{p['n_empty_negatives']} empty-crop negatives; AUCs over pairs with the object)"
         )
         if "classifier" in p:
             c = p["classifier"]
@@ -201,7 +211,8 @@ def format_report(res: dict[str, Any]) -> str:
             )
             lines.append(
                 f"  positives called aligned: {100 * c['aligned_rate_pos']:.1f} % overall, "
-                f"{100 * c['aligned_rate_occluded']:.1f} % of those 30-60% visible"
+                f"{100 * c['aligned_rate_occluded']:.1f} % of those 30-60% visible; empty crops "
+                f"called misaligned: {100 * c['empty_rejected']:.1f} %"
             )
         if "ae_cosine" in p:
             e = p["ae_cosine"]
@@ -209,7 +220,8 @@ def format_report(res: dict[str, Any]) -> str:
                 f"  AE cosine ROC AUC {e['auc']:.4f} (random), {e['auc_hard']:.4f} (hard); mean "
                 f"cosine on positives: {e['mean_pos_clear']:.3f} (>= 90% visible) -> "
                 f"{e['mean_pos_occluded']:.3f} (30-60% visible), drop {e['drop_occluded']:.3f}; "
-                f"negatives {e['mean_neg']:.3f}, hard negatives {e['mean_hard_neg']:.3f}"
+                f"negatives {e['mean_neg']:.3f}, hard negatives {e['mean_hard_neg']:.3f}, "
+                f"empty crops {e['mean_empty']:.3f}"
             )
     return "\n".join(lines)
 

@@ -300,10 +300,12 @@ class AELitModule(_ChpfModule):
         bs = x.shape[0]
         self.log("val/recon_loss", loss, prog_bar=True, batch_size=bs, sync_dist=True)
         self.log("val/mse", mse, batch_size=bs, sync_dist=True)
-        self._val_outputs["z"].append(F.normalize(z, dim=1))
-        self._val_outputs["R"].append(batch["R_allo"].float())
+        # retrieval is undefined for empty crops (no object: visib_fract 0)
+        keep = batch["visib_fract"] > 0 if "visib_fract" in batch else slice(None)
+        self._val_outputs["z"].append(F.normalize(z[keep], dim=1))
+        self._val_outputs["R"].append(batch["R_allo"][keep].float())
         if self._val_cb is None:
-            self._val_outputs["tz"].append(F.normalize(self.model.encoder(target), dim=1))
+            self._val_outputs["tz"].append(F.normalize(self.model.encoder(target[keep]), dim=1))
 
     def on_validation_epoch_end(self) -> None:
         z = self._gather_cat(self._val_outputs["z"])
@@ -499,7 +501,7 @@ class CHLitModule(_ChpfModule):
         )
         self.log("val/acc", m["acc"], prog_bar=True, sync_dist=True)
         self.log("val/auc", m["auc"], prog_bar=True, sync_dist=True)
-        for k in ("auc_hard", "aligned_rate_pos", "aligned_rate_occluded"):
+        for k in ("auc_hard", "aligned_rate_pos", "aligned_rate_occluded", "empty_rejected"):
             if not math.isnan(m[k]):
                 self.log(f"val/{k}", m[k], sync_dist=True)
 
@@ -526,24 +528,27 @@ def classifier_metrics(
 ) -> dict[str, float]:
     """Classifier figures from logits of P(misaligned) and labels ``y`` (1 = misaligned).
 
-    acc (threshold p = 0.5), auc (all pairs), auc_hard (all positives vs negatives whose angle
-    is in ``hard_deg``), aligned_rate_pos (positives called aligned), aligned_rate_occluded
-    (positives with visib_fract in ``occluded_visib`` called aligned).
+    acc (threshold p = 0.5), auc (all pairs that show the object), auc_hard (all positives vs
+    negatives whose angle is in ``hard_deg``), aligned_rate_pos (positives called aligned),
+    aligned_rate_occluded (positives with visib_fract in ``occluded_visib`` called aligned),
+    empty_rejected (empty-crop negatives, visib_fract 0, called misaligned).
     """
     logit, y = np.asarray(logit, np.float64), np.asarray(y) > 0.5
     angle_deg, visib = np.asarray(angle_deg), np.asarray(visib)
     called_mis = logit > 0
     pos = ~y
-    hard = y & (angle_deg >= hard_deg[0]) & (angle_deg <= hard_deg[1])
+    empty = visib <= 0
+    hard = y & ~empty & (angle_deg >= hard_deg[0]) & (angle_deg <= hard_deg[1])
     occl = pos & (visib >= occluded_visib[0]) & (visib <= occluded_visib[1])
     sel = pos | hard
     nan = float("nan")
     return {
         "acc": float(np.mean(called_mis == y)),
-        "auc": roc_auc(logit, y),
+        "auc": roc_auc(logit[~empty], y[~empty]),
         "auc_hard": roc_auc(logit[sel], y[sel]) if hard.any() and pos.any() else nan,
         "aligned_rate_pos": float(np.mean(~called_mis[pos])) if pos.any() else nan,
         "aligned_rate_occluded": float(np.mean(~called_mis[occl])) if occl.any() else nan,
+        "empty_rejected": float(np.mean(called_mis[empty & y])) if (empty & y).any() else nan,
         "n": float(y.size),
         "n_hard": float(hard.sum()),
         "n_occluded": float(occl.sum()),

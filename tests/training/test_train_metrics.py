@@ -97,3 +97,10 @@ def test_cosine_retrieval_and_classifier_metrics() -> None:
     assert m["aligned_rate_occluded"] == pytest.approx(0.5)  # visib 0.4 ok, 0.5 called mis
     # hard: negatives at 30 and 40 deg (logits 0.5, -0.5) vs positives (-2, -1, 1): 4/6
     assert m["auc_hard"] == pytest.approx(4 / 6)
+    # empty crops (visib 0, negatives): out of the AUC, counted as rejected when p >= 0.5
+    logit_e = np.append(logit, [-4.0, 2.0])
+    m_e = classifier_metrics(logit_e, np.append(y, [1, 1]), np.append(angle, [90.0, 90.0]),
+                             np.append(visib, [0.0, 0.0]))  # fmt: skip
+    assert m_e["auc"] == pytest.approx(m["auc"]) and m_e["auc_hard"] == pytest.approx(4 / 6)
+    assert m_e["empty_rejected"] == pytest.approx(0.5)
+    assert math.isnan(m["empty_rejected"])
