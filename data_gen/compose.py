@@ -167,7 +167,13 @@ class Composer:
         """
         P, S = self.P, self.S
         cfg = self.cfg
-        win = self.bg.sample(rng, P)
+        if not with_object and rng.random() < cfg["empty_crops"]["plain_share"]:
+            # plain (half of them dark: the unlit background of a rendered scene)
+            top = 40 if rng.random() < 0.5 else 256
+            win = np.empty((P, P, 3), np.uint8)
+            win[:] = rng.integers(0, top, 3).astype(np.uint8)
+        else:
+            win = self.bg.sample(rng, P)
         obj_mask = np.asarray(self.obs.mask[e])
         # clutter behind the object
         n_clutter = (

@@ -141,6 +141,7 @@ SCHEMA: dict[str, dict[str, tuple[Any, Check]]] = {
     "empty_crops": {
         "ae_share": (0.05, _num(0.0, 1.0)),
         "pairs_negative_share": (0.15, _num(0.0, 1.0)),
+        "plain_share": (0.3, _num(0.0, 1.0)),
     },
     "pairs": {
         "positive_share": (0.5, _num(0.0, 1.0)),

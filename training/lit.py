@@ -54,6 +54,19 @@ def bootstrapped_l2(recon: torch.Tensor, target: torch.Tensor, ratio: float = 0.
     return err.mean()
 
 
+def empty_separation(z: torch.Tensor, empty: torch.Tensor, margin: float) -> torch.Tensor:
+    """Mean ``relu(cos - margin)`` between the embeddings ``z`` (B,E) of empty crops (``empty``
+    (B,) bool: no object in the crop) and those of the batch's crops that show the object.
+
+    The cosine ignores the embedding's norm, so an empty crop, which the decoder only has to
+    turn into black, can otherwise point anywhere, also close to some view of the codebook.
+    """
+    if not bool(empty.any()) or bool(empty.all()):
+        return z.sum() * 0.0
+    zn = F.normalize(z, dim=1)
+    return F.relu(zn[empty] @ zn[~empty].T - margin).mean()
+
+
 def jitter_colors(x: torch.Tensor, amount: float) -> torch.Tensor:
     """Random per-image brightness/contrast and per-channel offset, ``x`` float in [0, 1]."""
     if amount <= 0:
@@ -218,6 +231,9 @@ class AELitModule(_ChpfModule):
             validation retrieval error is measured against it. Without it the clean targets
             of the validation set serve as the codebook (an optimistic proxy).
         val_codebook_batch: crops per forward pass when embedding the codebook.
+        empty_weight: weight of ``empty_separation`` in the loss (0 = off); it keeps the
+            embeddings of empty crops (``chpf-gen-data`` ``empty_crops``) away from every view.
+        empty_margin: cosine below which an empty crop and a view count as separated.
     """
 
     model_type = "ae"
@@ -234,6 +250,8 @@ class AELitModule(_ChpfModule):
         channels_last: bool = True,
         val_codebook: str | None = None,
         val_codebook_batch: int = 256,
+        empty_weight: float = 1.0,
+        empty_margin: float = 0.3,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -266,8 +284,12 @@ class AELitModule(_ChpfModule):
     def training_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         x = jitter_colors(self._images(batch, "input_rgb"), float(self.hparams.input_jitter))
         target = self._images(batch, "target_rgb")
-        recon, _ = self.model(x)
+        recon, z = self.model(x)
         loss = bootstrapped_l2(recon, target, float(self.hparams.bootstrap_ratio))
+        if self.hparams.empty_weight > 0 and "visib_fract" in batch:
+            sep = empty_separation(z, batch["visib_fract"] <= 0, float(self.hparams.empty_margin))
+            self.log("train/empty_sep", sep)
+            loss = loss + float(self.hparams.empty_weight) * sep
         self.log("train/loss", loss, prog_bar=True)
         return loss
 

@@ -104,3 +104,24 @@ def test_cosine_retrieval_and_classifier_metrics() -> None:
     assert m_e["auc"] == pytest.approx(m["auc"]) and m_e["auc_hard"] == pytest.approx(4 / 6)
     assert m_e["empty_rejected"] == pytest.approx(0.5)
     assert math.isnan(m["empty_rejected"])
+
+
+def test_empty_separation_pushes_empty_crops_away_from_views() -> None:
+    import torch
+
+    from training.lit import empty_separation
+
+    views = torch.tensor([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    empty = torch.tensor([False, False, True])
+    near = torch.cat([views, torch.tensor([[0.05, 0.0, 0.0]])])  # tiny norm, same direction
+    far = torch.cat([views, torch.tensor([[0.0, 0.0, -3.0]])])
+    # cosine 1 with view 0 and 0 with view 1: relu(1 - 0.3) and relu(0 - 0.3), averaged
+    assert float(empty_separation(near, empty, 0.3)) == pytest.approx(0.35)
+    assert float(empty_separation(far, empty, 0.3)) == 0.0
+    assert float(empty_separation(near, torch.zeros(3, dtype=torch.bool), 0.3)) == 0.0
+    tilted = torch.cat([views, torch.tensor([[0.05, 0.01, 0.0]])])
+    z = tilted.clone().requires_grad_(True)
+    sep = empty_separation(z, empty, 0.3)
+    assert float(sep) == pytest.approx((0.05 / math.hypot(0.05, 0.01) - 0.3) / 2, rel=1e-5)
+    sep.backward()
+    assert float(z.grad[2].norm()) > 0  # the gradient moves the empty crop's embedding
