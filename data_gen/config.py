@@ -139,9 +139,9 @@ SCHEMA: dict[str, dict[str, tuple[Any, Check]]] = {
         "ae_target": ("follow", _choice("follow", "centred")),
     },
     "empty_crops": {
-        "ae_share": (0.05, _num(0.0, 1.0)),
+        "ae_share": (0.08, _num(0.0, 1.0)),
         "pairs_negative_share": (0.15, _num(0.0, 1.0)),
-        "plain_share": (0.3, _num(0.0, 1.0)),
+        "plain_share": (0.5, _num(0.0, 1.0)),
     },
     "pairs": {
         "positive_share": (0.5, _num(0.0, 1.0)),

@@ -6,6 +6,7 @@ and codebook build time per 1,000 entries (cold render pool + embedding). For th
 encoder it also compares onnxruntime graph optimisation levels and dynamic int8 quantisation
 (speed, and the largest change of an embedding measured as 1 - cosine).
 
+The default encoder is the one of ``--config`` (default ``configs/train_ae.yaml``: model.encoder).
 Networks are randomly initialised (seeded) unless ``--ae CKPT`` gives trained weights for the
 default row; timings do not depend on the weights, the quantisation error does.
 """
@@ -33,6 +34,19 @@ POSERBPF_ENCODER: dict[str, Any] = {
     "embedding_dim": 128,
     "size": 128,
 }
+
+
+def default_encoder(config_path: str) -> dict[str, Any]:
+    """The encoder config of a training YAML (model.encoder); ConfigError if it has none."""
+    import yaml
+
+    from chpf.errors import ConfigError
+
+    try:
+        cfg = yaml.safe_load(Path(config_path).read_text())
+        return dict(cfg["model"]["encoder"])
+    except (OSError, yaml.YAMLError, KeyError, TypeError) as err:
+        raise ConfigError(f"{config_path}: no model.encoder ({type(err).__name__})") from None
 
 
 def time_ms(fn: Callable[[], object], reps: int, warmup: int = 2, stat: str = "min") -> float:
@@ -188,14 +202,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--skip-codebook", action="store_true", help="skip the codebook build timing")
     p.add_argument("--skip-poserbpf", action="store_true", help="skip the PoseRBPF-size encoder")
     p.add_argument("--ae", help="trained AE checkpoint for the default row (else random init)")
+    p.add_argument(
+        "--config",
+        default=str(Path(__file__).resolve().parent.parent / "configs" / "train_ae.yaml"),
+        help="training config whose model.encoder is the default row",
+    )
     args = p.parse_args(argv)
     logging.getLogger().setLevel(logging.ERROR)  # onnxruntime.quantization's advice on stderr
     load0 = os.getloadavg()
 
     from export import onnx_export as ox
-    from training.models import DEFAULT_ENCODER
 
-    configs: list[tuple[str, dict[str, Any]]] = [("default", dict(DEFAULT_ENCODER))]
+    configs: list[tuple[str, dict[str, Any]]] = [("default", default_encoder(args.config))]
     trained = None
     if args.ae:
         from training.checkpoints import load_autoencoder

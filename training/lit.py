@@ -54,17 +54,20 @@ def bootstrapped_l2(recon: torch.Tensor, target: torch.Tensor, ratio: float = 0.
     return err.mean()
 
 
-def empty_separation(z: torch.Tensor, empty: torch.Tensor, margin: float) -> torch.Tensor:
+def empty_separation(
+    z: torch.Tensor, empty: torch.Tensor, margin: float, views: torch.Tensor | None = None
+) -> torch.Tensor:
     """Mean ``relu(cos - margin)`` between the embeddings ``z`` (B,E) of empty crops (``empty``
-    (B,) bool: no object in the crop) and those of the batch's crops that show the object.
+    (B,) bool: no object in the crop) and those of the batch's crops that show the object,
+    plus the extra view embeddings ``views`` (V,E) if given (e.g. of the clean targets).
 
     The cosine ignores the embedding's norm, so an empty crop, which the decoder only has to
     turn into black, can otherwise point anywhere, also close to some view of the codebook.
     """
-    if not bool(empty.any()) or bool(empty.all()):
+    others = z[~empty] if views is None else torch.cat([z[~empty], views])
+    if not bool(empty.any()) or others.shape[0] == 0:
         return z.sum() * 0.0
-    zn = F.normalize(z, dim=1)
-    return F.relu(zn[empty] @ zn[~empty].T - margin).mean()
+    return F.relu(F.normalize(z[empty], dim=1) @ F.normalize(others, dim=1).T - margin).mean()
 
 
 def jitter_colors(x: torch.Tensor, amount: float) -> torch.Tensor:
@@ -287,7 +290,12 @@ class AELitModule(_ChpfModule):
         recon, z = self.model(x)
         loss = bootstrapped_l2(recon, target, float(self.hparams.bootstrap_ratio))
         if self.hparams.empty_weight > 0 and "visib_fract" in batch:
-            sep = empty_separation(z, batch["visib_fract"] <= 0, float(self.hparams.empty_margin))
+            empty = batch["visib_fract"] <= 0
+            views = None
+            if bool(empty.any()):  # clean views: the codebook's kind of crop (black around)
+                with torch.no_grad():
+                    views = self.model.encoder(target[~empty][:16])
+            sep = empty_separation(z, empty, float(self.hparams.empty_margin), views)
             self.log("train/empty_sep", sep)
             loss = loss + float(self.hparams.empty_weight) * sep
         self.log("train/loss", loss, prog_bar=True)

@@ -119,6 +119,9 @@ def test_empty_separation_pushes_empty_crops_away_from_views() -> None:
     assert float(empty_separation(near, empty, 0.3)) == pytest.approx(0.35)
     assert float(empty_separation(far, empty, 0.3)) == 0.0
     assert float(empty_separation(near, torch.zeros(3, dtype=torch.bool), 0.3)) == 0.0
+    # extra views (clean targets) count like the batch's views: here a third, orthogonal one
+    extra = torch.tensor([[0.0, 0.0, 1.0]])
+    assert float(empty_separation(near, empty, 0.3, extra)) == pytest.approx(0.7 / 3)
     tilted = torch.cat([views, torch.tensor([[0.05, 0.01, 0.0]])])
     z = tilted.clone().requires_grad_(True)
     sep = empty_separation(z, empty, 0.3)
