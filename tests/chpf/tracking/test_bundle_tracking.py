@@ -231,10 +231,10 @@ def test_shipped_bundle_likelihoods_rank_the_true_pose(sequence_renderer):
     assert s.L[0] > rand.L.max() and s.C[0] < np.percentile(rand.C, 5)
 
 
-@pytest.mark.parametrize("method", ["e2e"])
+@pytest.mark.parametrize("method", ["e2e", "poserbpf"])
 def test_shipped_bundle_tracks_an_unoccluded_sequence(sequence_renderer, method):
-    """MCL+E2E starts from the detection boxes alone and reaches a small ADD-S with the trained
-    networks (CH-PF and PoseRBPF do not yet with the shipped mug bundle: issue #5)."""
+    """MCL+E2E and PoseRBPF start from the detection boxes alone and reach a small ADD-S with
+    the trained networks (CH-PF does not yet reliably within 30 frames: issue #5)."""
     bundle = _shipped_bundle()
     name = bundle.obj_info.name
     seq = sequence_renderer(30, name=name, z=3.0 * bundle.obj_info.diameter)
