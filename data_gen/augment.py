@@ -135,6 +135,13 @@ def load_image_folder(folder: str | Path, max_images: int, side: int) -> np.ndar
     return np.stack(out)
 
 
+def plain_patch(rng: np.random.Generator, size: int, top: int = 256) -> np.ndarray:
+    """(size,size,3) uint8 filled with one random colour, channels drawn in [0, top)."""
+    img = np.empty((size, size, 3), np.uint8)
+    img[:] = rng.integers(0, top, 3).astype(np.uint8)
+    return img
+
+
 class Backgrounds:
     """Random background patches: procedural textures, optional user images, plain colours."""
 
@@ -173,9 +180,7 @@ class Backgrounds:
         resampled from a pyramid level at most 2x larger), flip and 90-degree turn of a source."""
         r = rng.random()
         if r < self.plain_share:
-            img = np.empty((size, size, 3), np.uint8)
-            img[:] = rng.integers(0, 256, 3).astype(np.uint8)
-            return img
+            return plain_patch(rng, size)
         src_set = self.images if rng.random() < self.image_share else self.textures
         i = int(rng.integers(0, len(src_set)))
         n = src_set.shape[1]

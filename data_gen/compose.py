@@ -169,12 +169,9 @@ class Composer:
         cfg = self.cfg
         if not with_object and rng.random() < cfg["empty_crops"]["plain_share"]:
             # plain (half of them dark: the unlit background of a rendered scene)
-            top = 40 if rng.random() < 0.5 else 256
-            win = np.empty((P, P, 3), np.uint8)
-            win[:] = rng.integers(0, top, 3).astype(np.uint8)
+            win = augment.plain_patch(rng, P, 40 if rng.random() < 0.5 else 256)
         else:
             win = self.bg.sample(rng, P)
-        obj_mask = np.asarray(self.obs.mask[e])
         # clutter behind the object
         n_clutter = (
             int(rng.integers(0, cfg["background"]["clutter_max"] + 1)) if len(self.occ) else 0
@@ -187,6 +184,7 @@ class Composer:
         if not with_object:
             empty = np.zeros((P, P), bool)
             return win, empty, empty, 0.0
+        obj_mask = np.asarray(self.obs.mask[e])
         L = self.obs.rgb.shape[1]
         light = int(rng.integers(0, L)) if L > 1 else 0
         a = self.obs.alpha[e]

@@ -35,7 +35,7 @@ from chpf.cli import atomic_write_text, run_main
 from chpf.errors import ConfigError
 from training.checkpoints import load_autoencoder, load_classifier
 from training.data import open_shards, shard_crop_size
-from training.lit import classifier_metrics, load_val_codebook
+from training.lit import classifier_metrics, load_val_codebook, pair_subsets
 from training.metrics import cosine_retrieval, retrieval_summary, roc_auc, symmetry_aware_angle
 from training.models import Preprocess
 
@@ -136,14 +136,9 @@ def evaluate_pairs(
     keys = ["obs_rgb", "cand_rgb", "aligned", "angle_deg", "visib_fract"]
     data = load_samples(pairs_dir, "pairs", keys, max_samples, seed)
     y = 1 - data["aligned"].astype(np.int64)  # 1 = misaligned
-    pos = y == 0
     visib = data["visib_fract"]
-    occl = pos & (visib >= occluded_visib[0]) & (visib <= occluded_visib[1])
+    pos, hard, occl, empty = pair_subsets(y, data["angle_deg"], visib, hard_deg, occluded_visib)
     clear = pos & (visib >= clear_visib)
-    empty = visib <= 0  # empty crops (no object): negatives by construction
-    hard = (
-        (y == 1) & ~empty & (data["angle_deg"] >= hard_deg[0]) & (data["angle_deg"] <= hard_deg[1])
-    )
     out: dict[str, Any] = {
         "n_pairs": int(y.size),
         "n_positives": int(pos.sum()),

@@ -548,6 +548,24 @@ class CHLitModule(_ChpfModule):
         self._ae_loaded = True
 
 
+def pair_subsets(
+    y: np.ndarray,
+    angle_deg: np.ndarray,
+    visib: np.ndarray,
+    hard_deg: tuple[float, float] = (20.0, 45.0),
+    occluded_visib: tuple[float, float] = (0.3, 0.6),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Boolean masks (N,) of pairs with labels ``y`` (1 = misaligned): positives, hard negatives
+    (angle in ``hard_deg``, object in the crop), positives with visib_fract in
+    ``occluded_visib``, and empty crops (visib_fract 0, no object)."""
+    y = np.asarray(y) > 0.5
+    angle_deg, visib = np.asarray(angle_deg), np.asarray(visib)
+    empty = visib <= 0
+    hard = y & ~empty & (angle_deg >= hard_deg[0]) & (angle_deg <= hard_deg[1])
+    occl = ~y & (visib >= occluded_visib[0]) & (visib <= occluded_visib[1])
+    return ~y, hard, occl, empty
+
+
 def classifier_metrics(
     logit: np.ndarray,
     y: np.ndarray,
@@ -564,12 +582,8 @@ def classifier_metrics(
     empty_rejected (empty-crop negatives, visib_fract 0, called misaligned).
     """
     logit, y = np.asarray(logit, np.float64), np.asarray(y) > 0.5
-    angle_deg, visib = np.asarray(angle_deg), np.asarray(visib)
     called_mis = logit > 0
-    pos = ~y
-    empty = visib <= 0
-    hard = y & ~empty & (angle_deg >= hard_deg[0]) & (angle_deg <= hard_deg[1])
-    occl = pos & (visib >= occluded_visib[0]) & (visib <= occluded_visib[1])
+    pos, hard, occl, empty = pair_subsets(y, angle_deg, visib, hard_deg, occluded_visib)
     sel = pos | hard
     nan = float("nan")
     return {
