@@ -49,6 +49,7 @@ from data_gen.pool import (
     occluder_pool,
 )
 from data_gen.rotations import (
+    half_turns,
     perturb_bounded,
     rotations_at_angle,
     symmetric_angle,
@@ -279,7 +280,8 @@ class Composer:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Codebook indices (N,) and symmetry-aware angles (N,) rad of candidates for true
         allocentric rotations R_true (N,3,3): positives (aligned=1) near R_true, negatives at
-        least ``neg_min_angle_deg`` away (hard ones drawn at ``hard_negative_range_deg``)."""
+        least ``neg_min_angle_deg`` away (hard ones drawn at ``hard_negative_range_deg``, flips
+        as half turns about an object axis perturbed like positives)."""
         p = self.cfg["pairs"]
         grid = self.grid
         n = len(R_true)
@@ -294,18 +296,24 @@ class Composer:
             )
             idx[pos] = grid.nearest(Rh)
         neg = np.flatnonzero(~pos)
-        hard = rng.random(len(neg)) < p["hard_negative_share"]
+        kind = rng.random(len(neg))
+        hard = kind < p["hard_negative_share"]
+        flip = ~hard & (kind < p["hard_negative_share"] + p["flip_negative_share"])
         lo, hi = np.radians(p["hard_negative_range_deg"])
+        pos_sigma, pos_max = np.radians([p["pos_rot_sigma_deg"], p["pos_rot_max_deg"]])
         min_ang = np.radians(p["neg_min_angle_deg"])
         todo = np.ones(len(neg), bool)
         for it in range(200):
             if not todo.any():
                 break
             sel = neg[todo]
-            h = hard[todo] & (it < 100)  # give up on hard draws that keep snapping too close
+            # give up on hard and flip draws that keep snapping too close (symmetric objects)
+            h, f = hard[todo] & (it < 100), flip[todo] & (it < 100)
             Rh = random_rotations(len(sel), rng)
             if h.any():
                 Rh[h] = rotations_at_angle(R_true[sel[h]], lo, hi, rng)
+            if f.any():
+                Rh[f] = perturb_bounded(half_turns(R_true[sel[f]], rng), pos_sigma, pos_max, rng)
             idx[sel] = grid.nearest(Rh)
             ang = symmetric_angle(
                 R_true[sel], grid.rotations[idx[sel]], self.sym_rots, self.sym_axes

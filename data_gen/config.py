@@ -150,6 +150,7 @@ SCHEMA: dict[str, dict[str, tuple[Any, Check]]] = {
         "neg_min_angle_deg": (20.0, _num(0.0, 170.0)),
         "hard_negative_share": (0.3, _num(0.0, 1.0)),
         "hard_negative_range_deg": ([20.0, 45.0], _range(0.0, 180.0)),
+        "flip_negative_share": (0.2, _num(0.0, 1.0)),
     },
     "shards": {"samples_per_shard": (1000, _num(1, 10000000, integer=True))},
     "depth": {
@@ -281,6 +282,10 @@ def check_consistency(cfg: dict, source: str = "config") -> None:
     if p["hard_negative_share"] > 0 and hi < p["neg_min_angle_deg"]:
         raise ConfigError(
             f"{source}: pairs.hard_negative_range_deg lies below pairs.neg_min_angle_deg"
+        )
+    if p["hard_negative_share"] + p["flip_negative_share"] > 1.0:
+        raise ConfigError(
+            f"{source}: pairs.hard_negative_share + pairs.flip_negative_share must be <= 1"
         )
     if lo < p["neg_min_angle_deg"] and p["hard_negative_share"] > 0:
         raise ConfigError(

@@ -61,6 +61,14 @@ def rotations_at_angle(R: np.ndarray, lo: float, hi: float, rng: np.random.Gener
     return axis_angle_to_matrix(axis * ang[:, None]) @ R
 
 
+def half_turns(R: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """R @ H with H a half turn about the x, y or z axis of the object (one drawn per row):
+    the object upside down or turned back to front, the look-alikes of many objects (a mug's
+    open top and its base). R (N,3,3) object -> camera."""
+    flips = np.stack([np.diag(d) for d in ([1.0, -1, -1], [-1.0, 1, -1], [-1.0, -1, 1])])
+    return np.asarray(R, np.float64) @ flips[rng.integers(0, 3, len(R))]
+
+
 def perturb_bounded(
     R: np.ndarray, sigma: float, max_angle: float, rng: np.random.Generator
 ) -> np.ndarray:

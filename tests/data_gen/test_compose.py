@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from chpf.crops import CropSpec, crop_affines, extract_crops
+from chpf.errors import ConfigError
 from chpf.geometry import geodesic_angle, random_rotations
 from chpf.objects import builtin_object
 from data_gen.compose import Composer, ComposerContext, build_pools
@@ -49,6 +50,25 @@ def test_labels_and_angles(composer):
     np.testing.assert_array_equal(out["cand_rgb"], comp.cb.rgb[idx])
     # hard negatives exist (20-45 degrees before snapping)
     assert (ang[neg] < 60).sum() > 10
+
+
+def test_flip_negatives_are_half_turns_about_an_object_axis(composer):
+    comp, _ = composer(
+        "pairs", "mug", "pairs.flip_negative_share=1.0", "pairs.hard_negative_share=0.0"
+    )
+    out = comp.pairs(np.random.default_rng(3), 120)
+    neg = out["aligned"] == 0
+    R_obs = out["obs_R_allo"][neg].astype(float)
+    R_cand = out["cand_R_allo"][neg].astype(float)
+    # the candidate is within perturbation + grid spacing of R_obs @ H for a half turn H about
+    # x, y or z, and far from R_obs itself
+    spacing = grid_spacing_deg(comp.grid)["max"]
+    halves = [np.diag(d) for d in ([1.0, -1, -1], [-1.0, 1, -1], [-1.0, -1, 1])]
+    off = np.min([np.degrees(geodesic_angle(R_obs @ H, R_cand)) for H in halves], axis=0)
+    assert off.max() <= 10.0 + spacing + 1e-3
+    assert out["angle_deg"][neg].min() >= 180.0 - 10.0 - spacing - 1e-3
+    with pytest.raises(ConfigError, match="flip_negative_share"):
+        load_config(None, ["pairs.flip_negative_share=0.8", "pairs.hard_negative_share=0.3"])
 
 
 def test_negatives_respect_continuous_symmetry(composer):
