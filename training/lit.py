@@ -70,6 +70,37 @@ def empty_separation(
     return F.relu(F.normalize(z[empty], dim=1) @ F.normalize(others, dim=1).T - margin).mean()
 
 
+def view_separation(
+    z: torch.Tensor, views: torch.Tensor, far: torch.Tensor, margin: float
+) -> torch.Tensor:
+    """Mean over the crops of ``relu(max_j cos(z_i, views_j) - margin)``, j over the pairs
+    ``far`` (B,V) bool: the embedding ``z_i`` (B,E) of an augmented crop against the hardest
+    clean-view embedding ``views_j`` (V,E) of an orientation far from crop i's (more than
+    ``view_min_angle_deg`` apart, up to symmetry). Crops without a far view count as 0.
+
+    Reconstruction alone leaves look-alike views far apart in orientation (a mug's front and
+    back) close in the embedding; this term is what the codebook look-up needs: a crop's cosine
+    to the views of other orientations stays below ``margin``.
+    """
+    if not bool(far.any()):
+        return z.sum() * 0.0
+    cos = F.normalize(z, dim=1) @ F.normalize(views, dim=1).T
+    hardest = cos.masked_fill(~far, -1.0).max(dim=1).values
+    return F.relu(hardest - margin).mean()
+
+
+def far_pairs(
+    R: np.ndarray, keep: np.ndarray, min_angle_deg: float, sym_d: list, sym_c: list[dict]
+) -> np.ndarray:
+    """(B,B) bool: rows and columns in ``keep`` (B,) whose rotations ``R`` (B,3,3) are more
+    than ``min_angle_deg`` apart up to the object's symmetries."""
+    b = R.shape[0]
+    Ri = np.repeat(R, b, axis=0)
+    Rj = np.tile(R, (b, 1, 1))
+    angle = np.degrees(symmetry_aware_angle(Ri, Rj, sym_d, sym_c)).reshape(b, b)
+    return (angle > min_angle_deg) & keep[:, None] & keep[None, :]
+
+
 def jitter_colors(x: torch.Tensor, amount: float) -> torch.Tensor:
     """Random per-image brightness/contrast and per-channel offset, ``x`` float in [0, 1]."""
     if amount <= 0:
@@ -237,6 +268,10 @@ class AELitModule(_ChpfModule):
         empty_weight: weight of ``empty_separation`` in the loss (0 = off); it keeps the
             embeddings of empty crops (``chpf-gen-data`` ``empty_crops``) away from every view.
         empty_margin: cosine below which an empty crop and a view count as separated.
+        view_weight: weight of ``view_separation`` in the loss (0 = off): a crop's embedding
+            against the clean views of the batch's other orientations.
+        view_margin: cosine below which a crop and a far view count as separated.
+        view_min_angle_deg: orientations more than this apart (up to symmetry) count as far.
     """
 
     model_type = "ae"
@@ -255,6 +290,9 @@ class AELitModule(_ChpfModule):
         val_codebook_batch: int = 256,
         empty_weight: float = 1.0,
         empty_margin: float = 0.3,
+        view_weight: float = 1.0,
+        view_margin: float = 0.5,
+        view_min_angle_deg: float = 90.0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -289,15 +327,34 @@ class AELitModule(_ChpfModule):
         target = self._images(batch, "target_rgb")
         recon, z = self.model(x)
         loss = bootstrapped_l2(recon, target, float(self.hparams.bootstrap_ratio))
-        if self.hparams.empty_weight > 0 and "visib_fract" in batch:
-            empty = batch["visib_fract"] <= 0
-            views = None
-            if bool(empty.any()):  # clean views: the codebook's kind of crop (black around)
-                with torch.no_grad():
-                    views = self.model.encoder(target[~empty][:16])
-            sep = empty_separation(z, empty, float(self.hparams.empty_margin), views)
+        hp = self.hparams
+        empty = batch["visib_fract"] <= 0 if "visib_fract" in batch else None
+        views = None  # clean views: the codebook's kind of crop (black around)
+        if hp.view_weight > 0 and "R_allo" in batch:
+            with torch.no_grad():
+                views = self.model.encoder(target)
+            keep = np.ones(len(z), bool) if empty is None else (~empty).cpu().numpy()
+            far = far_pairs(
+                batch["R_allo"].detach().cpu().double().numpy(),
+                keep,
+                float(hp.view_min_angle_deg),
+                *manifest_symmetries(self.data_info.get("object_info")),
+            )
+            sep = view_separation(z, views, torch.from_numpy(far).to(z.device), hp.view_margin)
+            self.log("train/view_sep", sep)
+            loss = loss + float(hp.view_weight) * sep
+        if hp.empty_weight > 0 and empty is not None:
+            empty_views = None
+            if bool(empty.any()):
+                if views is None:
+                    with torch.no_grad():
+                        views = self.model.encoder(target[~empty][:16])
+                    empty_views = views
+                else:
+                    empty_views = views[~empty][:16]
+            sep = empty_separation(z, empty, float(hp.empty_margin), empty_views)
             self.log("train/empty_sep", sep)
-            loss = loss + float(self.hparams.empty_weight) * sep
+            loss = loss + float(hp.empty_weight) * sep
         self.log("train/loss", loss, prog_bar=True)
         return loss
 

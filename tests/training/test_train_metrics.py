@@ -128,3 +128,37 @@ def test_empty_separation_pushes_empty_crops_away_from_views() -> None:
     assert float(sep) == pytest.approx((0.05 / math.hypot(0.05, 0.01) - 0.3) / 2, rel=1e-5)
     sep.backward()
     assert float(z.grad[2].norm()) > 0  # the gradient moves the empty crop's embedding
+
+
+def test_far_pairs_respect_angle_keep_and_symmetry() -> None:
+    from chpf.geometry import axis_angle_to_matrix
+    from training.lit import far_pairs
+
+    z_axis = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.5], [0.0, 0.0, np.pi]])
+    R = axis_angle_to_matrix(z_axis)  # 0, ~29 and 180 degrees about z
+    keep = np.array([True, True, True])
+    far = far_pairs(R, keep, 90.0, [], [])
+    assert far.tolist() == [[False, False, True], [False, False, True], [True, True, False]]
+    # the third crop shows no object: none of its pairs count
+    assert not far_pairs(R, np.array([True, True, False]), 90.0, [], [])[:, 2].any()
+    # a 180-degree symmetry about z makes the half turn the same view
+    half_turn = np.diag([-1.0, -1.0, 1.0, 1.0])
+    assert not far_pairs(R, keep, 90.0, [half_turn], []).any()
+
+
+def test_view_separation_pushes_the_hardest_far_view_away() -> None:
+    import torch
+
+    from training.lit import view_separation
+
+    views = torch.tensor([[1.0, 0.0], [0.0, 1.0], [0.6, 0.8]])
+    z = torch.tensor([[1.0, 0.0], [0.0, 3.0]], requires_grad=True)
+    far = torch.tensor([[False, True, True], [True, False, False]])
+    # crop 0: far views 1 (cos 0) and 2 (cos 0.6) -> hardest 0.6; crop 1: view 0, cos 0
+    sep = view_separation(z, views, far, 0.5)
+    assert float(sep.detach()) == pytest.approx((0.6 - 0.5) / 2)
+    sep.backward()
+    assert float(z.grad[0].norm()) > 0 and float(z.grad[1].norm()) == 0.0
+    none = torch.zeros(2, 3, dtype=torch.bool)
+    assert float(view_separation(z, views, none, 0.5)) == 0.0
+    assert float(view_separation(z, views, far, 0.7)) == 0.0
