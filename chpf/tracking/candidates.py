@@ -1,7 +1,8 @@
 """The candidate distribution phi_cand: where reinvigorated particles come from.
 
 Orientations are uniform on SO(3); the projection (u, v) of the translation is uniform in the
-2D detection box; the depth z is
+2D detection box (or, with ``uv_fraction`` < 1, in the box's central part: that fraction of its
+width and height around its centre); the depth z is
 
 - RGB: uniform in ``z_range`` metres, or, when ``box_extent`` (the object's typical projected
   extent in metres) is known, uniform in ``z_box_factors`` times the depth at which the object
@@ -58,6 +59,7 @@ class CandidateSampler:
     depth_offset: tuple[float, float] = (0.0, 0.05)
     depth_window: int = 3
     use_depth: bool = True
+    uv_fraction: float = 1.0
 
     def _z_rgb(self, n: int, box: Box, K: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         if self.box_extent is not None and self.box_extent > 0:
@@ -95,8 +97,9 @@ class CandidateSampler:
             raise ValueError("CandidateSampler.sample needs a frame with a valid box")
         K = np.asarray(frame.K, dtype=np.float64)
         R = random_rotations(n, rng)
-        u = box[0] + rng.random(n) * box[2]
-        v = box[1] + rng.random(n) * box[3]
+        margin = 0.5 * (1.0 - self.uv_fraction)
+        u = box[0] + (margin + self.uv_fraction * rng.random(n)) * box[2]
+        v = box[1] + (margin + self.uv_fraction * rng.random(n)) * box[3]
         z_rgb = self._z_rgb(n, box, K, rng)
         if self.use_depth and frame.depth is not None:
             z_meas = self._z_depth(u, v, box, np.asarray(frame.depth))

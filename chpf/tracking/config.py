@@ -33,6 +33,7 @@ class TrackConfig:
     z_range: tuple[float, float] = (0.3, 2.0)  # RGB z range when the box scale is not used
     z_from_box: bool = True  # RGB: z range from the box size and the object's extent
     z_box_factors: tuple[float, float] = (0.8, 1.25)
+    box_uv_fraction: float = 1.0  # (u, v) uniform in this central fraction of the box's sides
     depth_offset: tuple[float, float] | None = None  # RGB-D: z = measured + U(a, b); None =
     # (0, diameter / 2)
     depth_window: int = 3
@@ -91,6 +92,8 @@ class TrackConfig:
             raise bad("z_range", "must be 0 < min < max")
         if not 0 < self.z_box_factors[0] <= self.z_box_factors[1]:
             raise bad("z_box_factors", "must be 0 < min <= max")
+        if not 0.0 < self.box_uv_fraction <= 1.0:
+            raise bad("box_uv_fraction", "must be in (0, 1]")
         for key in ("e2e_rate", "fixed_rate", "rbpf_plus_fraction", "depth_no_data"):
             if not 0.0 <= getattr(self, key) <= 1.0:
                 raise bad(key, "must be in [0, 1]")

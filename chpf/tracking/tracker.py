@@ -115,6 +115,7 @@ class Tracker:
             depth_offset=tuple(cfg.depth_offset or (0.0, 0.5 * diameter)),  # type: ignore[arg-type]
             depth_window=cfg.depth_window,
             use_depth=rgbd,
+            uv_fraction=cfg.box_uv_fraction,
         )
         self.filter: Filter = make_filter(
             method, self.likelihood, cfg, self.candidates, np.random.default_rng(self.seed)

@@ -36,6 +36,20 @@ def test_rgb_candidates_project_into_the_box_with_z_in_range():
     assert np.abs(R.mean(axis=0)).max() < 0.06
 
 
+def test_uv_fraction_keeps_candidates_in_the_centre_of_the_box():
+    frame = Frame(RGB, None, K, BOX)
+    _, t = CandidateSampler(z_range=(0.5, 1.5), uv_fraction=0.25).sample(
+        2000, frame, np.random.default_rng(0)
+    )
+    centre = (BOX[0] + 0.375 * BOX[2], BOX[1] + 0.375 * BOX[3], 0.25 * BOX[2], 0.25 * BOX[3])
+    uv = project_points(t, K)
+    assert np.all(in_box(uv, centre))
+    # ... and fill that central quarter, as the whole box does with the default 1.0
+    assert np.ptp(uv[:, 0]) > 0.9 * centre[2] and np.ptp(uv[:, 1]) > 0.9 * centre[3]
+    _, t = CandidateSampler(z_range=(0.5, 1.5)).sample(2000, frame, np.random.default_rng(0))
+    assert np.ptp(project_points(t, K)[:, 0]) > 0.9 * BOX[2]
+
+
 def test_rgb_z_from_the_box_scale():
     s = CandidateSampler(box_extent=0.1, z_box_factors=(0.9, 1.1))
     _, t = s.sample(500, Frame(RGB, None, K, BOX), np.random.default_rng(0))

@@ -39,6 +39,7 @@ def test_overrides_and_refusals(tmp_path):
         {"c_mode": "maybe"},
         {"spin": "yes"},
         {"e2e_sigma_t": [0.1, 0.1]},
+        {"box_uv_fraction": 0.0},
     ):
         with pytest.raises(ConfigError):
             make_config(opts)
