@@ -7,7 +7,9 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
 2. encode: one autoencoder pass over the N crops (the classifier's observed branch reuses it
    when the bundle's CH shares the AE encoder, else one more pass with the CH encoder);
 3. lookup: nearest codebook entry of each particle's allocentric rotation R_ray(t)^T R;
-   cosine c with that entry's AE embedding; L = max(c, 0), w = exp(-(1 - c)^2 / (2 sigma^2));
+   cosine c with that entry's AE embedding; w = exp(-(1 - c)^2 / (2 sigma^2)) and the
+   unnormalised likelihood L in [0, 1] by ``l_from_cos``: "clip" L = max(c, 0) or "affine"
+   L = (1 + c) / 2 (see L_FROM_COS);
 4. head: C = p_misaligned(observed CH embedding, codebook CH embedding of the entry);
 5. depth (RGB-D): L_depth and C_depth from the codebook depth crops (chpf.tracking.depth_scores);
    L and w are multiplied by L_depth; C is the learned C, C_depth or their mean (``c_mode``).
@@ -32,6 +34,21 @@ from chpf.tracking.timing import ms_since
 from chpf.tracking.types import CodebookScores, Frame, Scores
 
 C_MODES = ("learned", "depth", "both", "none")
+L_FROM_COS = ("clip", "affine")
+"""How the cosine c in [-1, 1] becomes the unnormalised likelihood L in [0, 1] that SRL, Aug.
+MCL and CH-PF sum: "clip" L = max(c, 0); "affine" L = (1 + c) / 2. With the trained encoders,
+whose embeddings of unrelated views are near orthogonal (c ~ 0), "clip" gives the candidates
+drawn blindly from phi_cand L ~ 0 next to C ~ 1, which holds CH-PF's alpha near 1 even on a
+correct belief; "affine" keeps the baseline that an Augmented Autoencoder's cosine has."""
+
+
+def likelihood_from_cosine(c: np.ndarray, mode: str) -> np.ndarray:
+    """Unnormalised likelihood L (N,) in [0, 1] of cosine similarities c (N,) (L_FROM_COS)."""
+    if mode == "clip":
+        return np.maximum(c, 0.0)
+    if mode == "affine":
+        return np.clip(0.5 * (1.0 + c), 0.0, 1.0)
+    raise ConfigError(f"l_from_cos must be one of {L_FROM_COS}, got {mode!r}")
 
 
 def _codebook_extent(depth: np.ndarray, scale: float) -> np.ndarray:
@@ -50,16 +67,18 @@ def _codebook_extent(depth: np.ndarray, scale: float) -> np.ndarray:
 class BundleLikelihood:
     """AE likelihood L, learned C, depth L_depth / C_depth from a Bundle (see module docstring).
 
-    sigma: width of w = exp(-(1 - c)^2 / (2 sigma^2)). c_mode: "learned" | "depth" | "both" |
-    "none" (C = None). use_depth: use frame.depth when given (RGB-D). depth_margin /
-    c_depth_margin: metres. depth_no_data: L_depth and C_depth without valid depth pixels.
+    sigma: width of w = exp(-(1 - c)^2 / (2 sigma^2)). l_from_cos: "clip" | "affine" (L from
+    c, see L_FROM_COS). c_mode: "learned" | "depth" | "both" | "none" (C = None). use_depth:
+    use frame.depth when given (RGB-D). depth_margin / c_depth_margin: metres. depth_no_data:
+    L_depth and C_depth without valid depth pixels.
     """
 
     def __init__(
         self,
         bundle: Bundle,
-        sigma: float = 0.1,
+        sigma: float = 0.3,
         c_mode: str = "learned",
+        l_from_cos: str = "clip",
         use_depth: bool = False,
         depth_margin: float = 0.03,
         c_depth_margin: float = 0.02,
@@ -70,6 +89,8 @@ class BundleLikelihood:
             raise ConfigError(f"c_mode must be one of {C_MODES}, got {c_mode!r}")
         if c_mode in ("depth", "both") and not use_depth:
             raise ConfigError(f"c_mode {c_mode!r} needs depth (modality rgbd)")
+        if l_from_cos not in L_FROM_COS:
+            raise ConfigError(f"l_from_cos must be one of {L_FROM_COS}, got {l_from_cos!r}")
         if sigma <= 0:
             raise ConfigError(f"likelihood sigma must be > 0, got {sigma}")
         self.bundle = bundle
@@ -77,6 +98,7 @@ class BundleLikelihood:
         self.grid = bundle.grid
         self.sigma = float(sigma)
         self.c_mode = c_mode
+        self.l_from_cos = l_from_cos
         self.use_depth = bool(use_depth)
         self.depth_margin = float(depth_margin)
         self.c_depth_margin = float(c_depth_margin)
@@ -153,7 +175,7 @@ class BundleLikelihood:
         c = self.bundle.cosine(emb, idx).astype(np.float64)
         behind = t[:, 2] < self.z_min
         c[behind] = -1.0
-        L = np.maximum(c, 0.0)
+        L = likelihood_from_cosine(c, self.l_from_cos)
         w = np.exp(-((1.0 - c) ** 2) / (2.0 * self.sigma**2))
         ms["lookup"] = ms_since(t0)
 
@@ -199,27 +221,45 @@ class BundleLikelihood:
             return None
         return self._depth(frame, np.asarray(idx), np.asarray(t, dtype=np.float64)).L
 
-    # ------------------------------------------------------------------ MCL + E2E
-    def single_frame_estimate(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
-        """Pose from the detection box alone: crop at the box centre (depth guessed from the box
-        size and the codebook's median object extent), nearest codebook entry by cosine over
-        the whole codebook gives R_allo, that entry's own extent vs the box gives z; then
-        egocentric through the ray of the box centre. None without a box."""
+    # ------------------------------------------------------------------ box-centre look-up
+    def box_centre_cosines(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
+        """Cosines (K,) of the crop at the detection box's centre with the whole codebook and
+        that crop's translation (3,) metres (depth guessed from the box size and the codebook's
+        median object extent); None without a box."""
         box = valid_box(frame.box)
         if box is None:
             return None
         K = np.asarray(frame.K, dtype=np.float64)
-        u = np.array([box[0] + 0.5 * (box[2] - 1.0)])
-        v = np.array([box[1] + 0.5 * (box[3] - 1.0)])
-        side = max(box[2], box[3])
+        t0 = backproject(
+            np.array([box[0] + 0.5 * (box[2] - 1.0)]),
+            np.array([box[1] + 0.5 * (box[3] - 1.0)]),
+            np.array([self._box_depth(box, K, self.median_extent_px)]),
+            K,
+        )
+        return self.codebook_scores(frame, t0).cos[0], t0[0]
 
-        def z_of(extent_px: float) -> float:  # depth at which that extent spans the box
-            return self.spec.render_distance * (extent_px / side) * (K[0, 0] / self.spec.focal)
+    def _box_depth(self, box: tuple[float, float, float, float], K: np.ndarray, extent_px: float):
+        """Depth (m) at which an object of ``extent_px`` crop pixels spans the box."""
+        return (
+            self.spec.render_distance
+            * (extent_px / max(box[2], box[3]))
+            * (K[0, 0] / self.spec.focal)
+        )
 
-        t0 = backproject(u, v, np.array([z_of(self.median_extent_px)]), K)
-        cos = self.codebook_scores(frame, t0).cos[0]
+    # ------------------------------------------------------------------ MCL + E2E
+    def single_frame_estimate(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
+        """Pose from the detection box alone: the codebook entry with the best cosine for the
+        crop at the box centre (box_centre_cosines) gives R_allo, that entry's own extent vs the
+        box gives z; then egocentric through the ray of the box centre. None without a box."""
+        found = self.box_centre_cosines(frame)
+        if found is None:
+            return None
+        cos, t0 = found
+        box = valid_box(frame.box)
+        assert box is not None
+        K = np.asarray(frame.K, dtype=np.float64)
         k = int(np.argmax(cos))
         ext = self.extent_px[k] if self.extent_px[k] > 0 else self.median_extent_px
-        t = backproject(u, v, np.array([z_of(ext)]), K)[0]
+        t = t0 * (self._box_depth(box, K, ext) / t0[2])  # same ray, the entry's own depth
         R = allocentric_to_egocentric(self.grid.rotations[k], t)
         return R, t

@@ -1,8 +1,9 @@
 """The candidate distribution phi_cand: where reinvigorated particles come from.
 
-Orientations are uniform on SO(3); the projection (u, v) of the translation is uniform in the
-2D detection box (or, with ``uv_fraction`` < 1, in the box's central part: that fraction of its
-width and height around its centre); the depth z is
+Orientations are uniform on SO(3) (or come from a ``RotationSource``, e.g.
+chpf.tracking.codebook_candidates.CodebookRotations); the projection (u, v) of the translation
+is uniform in the 2D detection box (or, with ``uv_fraction`` < 1, in the box's central part:
+that fraction of its width and height around its centre); the depth z is
 
 - RGB: uniform in ``z_range`` metres, or, when ``box_extent`` (the object's typical projected
   extent in metres) is known, uniform in ``z_box_factors`` times the depth at which the object
@@ -15,11 +16,20 @@ width and height around its centre); the depth z is
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from chpf.geometry import random_rotations
 from chpf.tracking.types import Box, Frame
+
+
+class RotationSource(Protocol):
+    """Where phi_cand's orientations come from: n egocentric R (n,3,3) for translations t (n,3)."""
+
+    def sample(
+        self, n: int, frame: Frame, t: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray: ...
 
 
 def valid_box(box: Box | None) -> Box | None:
@@ -60,6 +70,7 @@ class CandidateSampler:
     depth_window: int = 3
     use_depth: bool = True
     uv_fraction: float = 1.0
+    rotations: RotationSource | None = None  # None: uniform on SO(3)
 
     def _z_rgb(self, n: int, box: Box, K: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         if self.box_extent is not None and self.box_extent > 0:
@@ -96,7 +107,6 @@ class CandidateSampler:
         if box is None:
             raise ValueError("CandidateSampler.sample needs a frame with a valid box")
         K = np.asarray(frame.K, dtype=np.float64)
-        R = random_rotations(n, rng)
         margin = 0.5 * (1.0 - self.uv_fraction)
         u = box[0] + (margin + self.uv_fraction * rng.random(n)) * box[2]
         v = box[1] + (margin + self.uv_fraction * rng.random(n)) * box[3]
@@ -107,4 +117,7 @@ class CandidateSampler:
             z = np.where(np.isnan(z_meas), z_rgb, z_meas + offset)
         else:
             z = z_rgb
-        return R, backproject(u, v, z, K)
+        t = backproject(u, v, z, K)
+        if self.rotations is None:
+            return random_rotations(n, rng), t
+        return self.rotations.sample(n, frame, t, rng), t

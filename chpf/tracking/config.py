@@ -34,11 +34,15 @@ class TrackConfig:
     z_from_box: bool = True  # RGB: z range from the box size and the object's extent
     z_box_factors: tuple[float, float] = (0.8, 1.25)
     box_uv_fraction: float = 1.0  # (u, v) uniform in this central fraction of the box's sides
+    candidate_rotations: str = "uniform"  # uniform | codebook (matching the box's crop)
+    candidate_temperature: float = 0.05  # codebook: p(entry) ~ exp((cos - max cos) / this)
+    candidate_uniform_share: float = 0.25  # codebook: share still drawn uniformly
     depth_offset: tuple[float, float] | None = None  # RGB-D: z = measured + U(a, b); None =
     # (0, diameter / 2)
     depth_window: int = 3
     # likelihoods
-    sigma: float = 0.1  # AE cosine -> importance weight width
+    sigma: float = 0.3  # AE cosine -> importance weight width
+    l_from_cos: str = "clip"  # unnormalised likelihood L from the cosine: clip | affine
     c_mode: str = "learned"  # learned | depth | both | none
     depth_margin: float = 0.03
     c_depth_margin: float = 0.02
@@ -84,7 +88,7 @@ class TrackConfig:
         for key in ("sigma_t", "sigma_r", "depth_margin", "c_depth_margin", "e2e_sigma_r"):
             if getattr(self, key) < 0:
                 raise bad(key, "must be >= 0")
-        for key in ("sigma", "rbpf_sigma", "srl_beta"):
+        for key in ("sigma", "rbpf_sigma", "srl_beta", "candidate_temperature"):
             if getattr(self, key) <= 0:
                 raise bad(key, "must be > 0")
         lo, hi = self.z_range
@@ -94,11 +98,21 @@ class TrackConfig:
             raise bad("z_box_factors", "must be 0 < min <= max")
         if not 0.0 < self.box_uv_fraction <= 1.0:
             raise bad("box_uv_fraction", "must be in (0, 1]")
-        for key in ("e2e_rate", "fixed_rate", "rbpf_plus_fraction", "depth_no_data"):
+        if self.candidate_rotations not in ("uniform", "codebook"):
+            raise bad("candidate_rotations", "must be uniform or codebook")
+        for key in (
+            "e2e_rate",
+            "fixed_rate",
+            "rbpf_plus_fraction",
+            "depth_no_data",
+            "candidate_uniform_share",
+        ):
             if not 0.0 <= getattr(self, key) <= 1.0:
                 raise bad(key, "must be in [0, 1]")
         if self.c_mode not in ("learned", "depth", "both", "none"):
             raise bad("c_mode", "must be learned, depth, both or none")
+        if self.l_from_cos not in ("clip", "affine"):
+            raise bad("l_from_cos", "must be clip or affine")
         if self.rbpf_rotation_estimate not in ("argmax", "mean"):
             raise bad("rbpf_rotation_estimate", "must be argmax or mean")
         if self.threads < 1:

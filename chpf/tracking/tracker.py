@@ -20,6 +20,7 @@ from chpf.bundle import Bundle
 from chpf.errors import BundleError, ConfigError, ImageSizeError
 from chpf.tracking.bundle_likelihood import BundleLikelihood
 from chpf.tracking.candidates import CandidateSampler
+from chpf.tracking.codebook_candidates import CodebookRotations
 from chpf.tracking.config import METHODS, MODALITIES, TrackConfig, make_config
 from chpf.tracking.methods import Filter, make_filter
 from chpf.tracking.types import Box, Frame, TrackResult
@@ -101,6 +102,7 @@ class Tracker:
         self.likelihood = BundleLikelihood(
             bundle,
             sigma=cfg.sigma,
+            l_from_cos=cfg.l_from_cos,
             c_mode=c_mode,
             use_depth=rgbd,
             depth_margin=cfg.depth_margin,
@@ -116,6 +118,11 @@ class Tracker:
             depth_window=cfg.depth_window,
             use_depth=rgbd,
             uv_fraction=cfg.box_uv_fraction,
+            rotations=None
+            if cfg.candidate_rotations == "uniform"
+            else CodebookRotations(
+                self.likelihood, cfg.candidate_temperature, cfg.candidate_uniform_share
+            ),
         )
         self.filter: Filter = make_filter(
             method, self.likelihood, cfg, self.candidates, np.random.default_rng(self.seed)

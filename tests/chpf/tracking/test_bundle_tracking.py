@@ -11,7 +11,8 @@ from chpf.errors import BundleError, ConfigError, ImageSizeError
 from chpf.geometry import allocentric_to_egocentric, geodesic_angle, random_rotations
 from chpf.metrics import adds
 from chpf.objects import get_object
-from chpf.tracking.bundle_likelihood import BundleLikelihood
+from chpf.tracking.bundle_likelihood import BundleLikelihood, likelihood_from_cosine
+from chpf.tracking.codebook_candidates import CodebookRotations
 from chpf.tracking.depth_scores import depth_scores
 from chpf.tracking.tracker import Tracker
 from chpf.tracking.types import Frame
@@ -51,7 +52,7 @@ def _hypotheses(seq, i, rng, n=16):
 
 def test_bundle_likelihood_prefers_the_true_pose(bundle, rendered_sequence):
     seq = rendered_sequence
-    like = BundleLikelihood(bundle, c_mode="learned")
+    like = BundleLikelihood(bundle, sigma=0.1, c_mode="learned")
     frame = Frame(seq.rgb[0], None, seq.K, seq.box(0))
     s = {
         k: like.score(frame, R, t)
@@ -65,6 +66,26 @@ def test_bundle_likelihood_prefers_the_true_pose(bundle, rendered_sequence):
         assert np.all((sc.L >= 0) & (sc.L <= 1) & (sc.C >= 0) & (sc.C <= 1))
     assert {"crop", "encode", "lookup", "head"} <= set(s["truth"].stage_ms)
     assert "ch_encode" not in s["truth"].stage_ms  # shared encoder: one pass for L and C
+
+
+def test_l_from_cos_maps_the_cosine_to_the_unnormalised_likelihood(bundle, rendered_sequence):
+    seq = rendered_sequence
+    frame = Frame(seq.rgb[0], None, seq.K, seq.box(0))
+    R, t = _hypotheses(seq, 0, np.random.default_rng(2))["random"]
+    t = np.concatenate([t, [[0.0, 0.0, -0.5]]])  # the last one is behind the camera
+    R = np.concatenate([R, seq.R[:1]])
+    clip = BundleLikelihood(bundle, l_from_cos="clip").score(frame, R, t)
+    affine = BundleLikelihood(bundle, l_from_cos="affine").score(frame, R, t)
+    cos = 1.0 - 0.3 * np.sqrt(-2.0 * np.log(clip.w[:-1]))  # w = exp(-(1 - c)^2 / (2 sigma^2))
+    np.testing.assert_allclose(clip.L[:-1], np.maximum(cos, 0.0), atol=1e-6)
+    np.testing.assert_allclose(affine.L[:-1], 0.5 * (1.0 + cos), atol=1e-6)
+    np.testing.assert_array_equal(affine.w, clip.w)  # the weights do not depend on it
+    assert clip.L[-1] == affine.L[-1] == 0.0  # behind the camera: c = -1
+    with pytest.raises(ConfigError):
+        BundleLikelihood(bundle, l_from_cos="square")
+    c = np.array([-1.0, -0.2, 0.0, 0.4, 1.0])
+    np.testing.assert_allclose(likelihood_from_cosine(c, "clip"), [0.0, 0.0, 0.0, 0.4, 1.0])
+    np.testing.assert_allclose(likelihood_from_cosine(c, "affine"), [0.0, 0.4, 0.5, 0.7, 1.0])
 
 
 def test_separate_ch_encoder_runs_its_own_pass(template_bundle_split, rendered_sequence):
@@ -139,15 +160,22 @@ def _track(tracker, seq, modality="rgb", frames=None):
 
 
 @pytest.mark.parametrize(
-    ("method", "modality", "max_adds"),
+    ("method", "modality", "max_adds", "options"),
     # The template bundle's likelihood is much narrower than a trained autoencoder's (raw pixel
     # correlation), which limits the 6D filters more than the Rao-Blackwellised one.
-    [("chpf", "rgb", 0.15), ("chpf", "rgbd", 0.15), ("poserbpf", "rgb", 0.1)],
+    [
+        ("chpf", "rgb", 0.15, {}),
+        ("chpf", "rgbd", 0.15, {}),
+        ("chpf", "rgb", 0.15, {"candidate_rotations": "codebook", "box_uv_fraction": 0.3}),
+        ("poserbpf", "rgb", 0.1, {}),
+    ],
 )
 def test_tracker_reaches_a_small_adds_on_an_unoccluded_sequence(
-    bundle, rendered_sequence, method, modality, max_adds
+    bundle, rendered_sequence, method, modality, max_adds, options
 ):
-    tracker = Tracker.from_bundle(bundle, method=method, modality=modality, seed=0)
+    tracker = Tracker.from_bundle(bundle, method=method, modality=modality, seed=0, **options)
+    informed = options.get("candidate_rotations") == "codebook"
+    assert isinstance(tracker.candidates.rotations, CodebookRotations) == informed
     errs, res = _track(tracker, rendered_sequence, modality)
     diameter = bundle.obj_info.diameter
     assert np.median(errs[-8:]) < max_adds * diameter, (method, modality, errs)

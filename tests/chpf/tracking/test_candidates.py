@@ -91,3 +91,55 @@ def test_valid_box():
         assert valid_box(bad) is None
     with pytest.raises(ValueError):
         CandidateSampler().sample(3, Frame(RGB, None, K, None), np.random.default_rng(0))
+
+
+class _FixedScorer:
+    """Box-centre cosines that single out entries 3 (best) and 7 (second) of a small grid."""
+
+    def __init__(self):
+        from chpf.geometry import RotationGrid
+
+        self.grid = RotationGrid.uniform(64)
+        self.cos = np.zeros(64)
+        self.cos[3], self.cos[7] = 0.9, 0.85
+
+    def box_centre_cosines(self, frame):
+        return None if frame.box is None else (self.cos, np.array([0.0, 0.0, 1.0]))
+
+
+def test_codebook_rotations_follow_the_box_crop_look_up():
+    from chpf.geometry import allocentric_to_egocentric, egocentric_to_allocentric, geodesic_angle
+    from chpf.tracking.codebook_candidates import CodebookRotations
+
+    scorer = _FixedScorer()
+    source = CodebookRotations(scorer, temperature=0.05, uniform_share=0.25)
+    p = source.probabilities(scorer.cos)
+    assert p.sum() == pytest.approx(1.0) and p[3] / p[7] == pytest.approx(np.exp(1.0))
+    assert p[3] / p[0] == pytest.approx(np.exp(18.0))
+    sampler = CandidateSampler(z_range=(0.5, 1.5), rotations=source)
+    R, t = sampler.sample(400, Frame(RGB, None, K, BOX), np.random.default_rng(0))
+    assert np.all(in_box(project_points(t, K), BOX))  # translations as with uniform rotations
+    R_allo = egocentric_to_allocentric(R, t)  # the entries are allocentric: through each ray
+    d3 = geodesic_angle(R_allo, np.broadcast_to(scorer.grid.rotations[3], R.shape))
+    d7 = geodesic_angle(R_allo, np.broadcast_to(scorer.grid.rotations[7], R.shape))
+    from_codebook = (d3 < 1e-6) | (d7 < 1e-6)
+    assert from_codebook[:300].all() and from_codebook[300:].mean() < 0.1  # 25 % uniform
+    assert 0.6 < (d3[:300] < 1e-6).mean() < 0.85  # e / (1 + e) = 0.73 of them are entry 3
+    np.testing.assert_allclose(
+        R[0], allocentric_to_egocentric(scorer.grid.rotations[3 if d3[0] < 1e-6 else 7], t[0])
+    )
+    # without a box the source falls back to uniform orientations
+    R_none = source.sample(
+        200, Frame(RGB, None, K, None), t[:1].repeat(200, 0), np.random.default_rng(1)
+    )
+    assert np.abs(R_none.mean(axis=0)).max() < 0.15
+
+
+def test_codebook_rotations_refuse_bad_settings():
+    from chpf.errors import ConfigError
+    from chpf.tracking.codebook_candidates import CodebookRotations
+
+    with pytest.raises(ConfigError):
+        CodebookRotations(_FixedScorer(), temperature=0.0)
+    with pytest.raises(ConfigError):
+        CodebookRotations(_FixedScorer(), uniform_share=1.5)

@@ -12,7 +12,7 @@ from chpf.tracking.config import TrackConfig, make_config
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 
 
-@pytest.mark.parametrize("name", ["track_default.yaml", "track_rgbd.yaml"])
+@pytest.mark.parametrize("name", ["track_default.yaml", "track_rgbd.yaml", "track_informed.yaml"])
 def test_shipped_configs_load(name):
     cfg = make_config(CONFIGS / name)
     assert isinstance(cfg, TrackConfig) and cfg.n_particles == 50
