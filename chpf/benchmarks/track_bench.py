@@ -119,13 +119,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--modality", default="rgb", choices=("rgb", "rgbd"))
     p.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
     p.add_argument("--spin", action="store_true", help="let onnxruntime threads busy-wait")
+    p.add_argument("--config", type=Path, default=None, help="tracking options YAML")
     args = p.parse_args(argv)
     if args.bundle is None:
         from chpf.tracking.demo import shipped_bundle
 
         args.bundle = shipped_bundle()
     bundle = Bundle.load(args.bundle, threads=args.threads, spin=args.spin)
-    cfg = make_config(n_particles=args.n_particles, threads=args.threads)
+    cfg = make_config(args.config, n_particles=args.n_particles, threads=args.threads)
     frames = bench_frames(bundle)
     rows = {}
     for m in [s.strip() for s in args.methods.split(",") if s.strip()]:
