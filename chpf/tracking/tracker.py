@@ -3,7 +3,7 @@
 Example::
 
     from chpf.tracking import Tracker
-    tracker = Tracker.from_bundle("chpf/assets/bundles/mug", method="chpf", n_particles=50)
+    tracker = Tracker.from_bundle("chpf/assets/bundles/box", method="chpf", n_particles=50)
     for rgb, K, box in frames:                    # box = (x, y, w, h) pixels or None
         result = tracker.step(rgb, K=K, box=box)  # result.R (3,3), result.t (3,) metres
 """
