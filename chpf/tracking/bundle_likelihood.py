@@ -255,11 +255,8 @@ class BundleLikelihood:
         if found is None:
             return None
         cos, t0 = found
-        box = valid_box(frame.box)
-        assert box is not None
-        K = np.asarray(frame.K, dtype=np.float64)
         k = int(np.argmax(cos))
         ext = self.extent_px[k] if self.extent_px[k] > 0 else self.median_extent_px
-        t = t0 * (self._box_depth(box, K, ext) / t0[2])  # same ray, the entry's own depth
+        t = t0 * (ext / self.median_extent_px)  # same ray; the box depth is linear in the extent
         R = allocentric_to_egocentric(self.grid.rotations[k], t)
         return R, t

@@ -53,9 +53,9 @@ class CodebookRotations:
     def sample(self, n: int, frame: Frame, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """n egocentric orientations (n,3,3) for candidate translations t (n,3) metres."""
         R = random_rotations(n, rng)
-        found = self.scorer.box_centre_cosines(frame)
         n_cb = n - round(self.uniform_share * n)
-        if found is None or n_cb <= 0:
+        found = self.scorer.box_centre_cosines(frame) if n_cb > 0 else None
+        if found is None:
             return R
         k = rng.choice(found[0].shape[0], n_cb, p=self.probabilities(found[0]))
         R[:n_cb] = allocentric_to_egocentric(self.scorer.grid.rotations[k], t[:n_cb])
