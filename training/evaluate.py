@@ -12,8 +12,10 @@ augmented and occluded as in training).
 Autoencoder: nearest-by-cosine retrieval of the augmented held-out crops against a uniform-grid
 codebook (>= 20k entries for the issue's figure), symmetry-aware error in degrees: median and %
 under 30 degrees (clean target crops too, for reference).
-Classifier (``--ch`` + ``--pairs``): ROC AUC on all pairs (random negatives) and on hard
-negatives (20-45 degrees), the share of positives called aligned (p < 0.5), overall and for
+Classifier (``--ch`` + ``--pairs``): ROC AUC on all pairs that show the object (every kind of
+negative the folder holds: for the issue's "random negatives" figure, generate the folder with
+``--set pairs.hard_negative_share=0 --set pairs.flip_negative_share=0``) and on hard negatives
+(20-45 degrees), the share of positives called aligned (p < 0.5), overall and for
 objects 30-60% visible, and the autoencoder's cosine between the observed and the candidate crop
 on the same pairs (its AUC, and how far it drops from well-visible to 30-60%-visible positives).
 """
@@ -119,7 +121,34 @@ def evaluate_ae(
         idx, _ = cosine_retrieval(embed(ae.encoder, data[key]), cb_emb)
         err = np.degrees(symmetry_aware_angle(cb_R[idx], data["R_allo"], sym_d, sym_c))
         out[label] = retrieval_summary(err, 30.0)
+        if label == "augmented":
+            out["augmented_by_visibility"] = by_visibility(err, data["visib_fract"])
     return out
+
+
+VISIBILITY_BANDS = ((0.9, 1.0), (0.6, 0.9), (0.3, 0.6), (0.0, 0.3))
+
+
+def by_visibility(err_deg: np.ndarray, visib: np.ndarray) -> list[dict[str, Any]]:
+    """Retrieval summaries of the errors ``err_deg`` (N,) degrees per band of the visible
+    fraction ``visib`` (N,) (bands [lo, hi), the top one closed), with the crop count and the
+    share (%) turned more than 150 degrees (front/back look-alikes)."""
+    rows = []
+    for lo, hi in VISIBILITY_BANDS:
+        m = (visib >= lo) & ((visib < hi) | (hi >= 1.0))
+        if lo == 0.0:
+            m &= visib > 0
+        rows.append(
+            {
+                "visib": [lo, hi],
+                "n": int(m.sum()),
+                **retrieval_summary(err_deg[m], 30.0),
+                "pct_above150": float(100.0 * np.mean(err_deg[m] > 150))
+                if m.any()
+                else float("nan"),
+            }
+        )
+    return rows
 
 
 def evaluate_pairs(
@@ -191,6 +220,12 @@ def format_report(res: dict[str, Any]) -> str:
                 f"  {label:9s}  median {s['median_deg']:6.2f} deg   mean {s['mean_deg']:6.2f} deg"
                 f"   < 30 deg {s['pct_below']:5.1f} %"
             )
+        for b in a["augmented_by_visibility"]:
+            lines.append(
+                f"    {b['visib'][0]:.1f}-{b['visib'][1]:.1f} visible ({b['n']:4d} crops): median "
+                f"{b['median_deg']:6.2f} deg   < 30 deg {b['pct_below']:5.1f} %   > 150 deg "
+                f"{b['pct_above150']:5.1f} %"
+            )
     if "pairs" in res:
         p = res["pairs"]
         lines.append(
@@ -201,7 +236,7 @@ def format_report(res: dict[str, Any]) -> str:
         if "classifier" in p:
             c = p["classifier"]
             lines.append(
-                f"  classifier ROC AUC {c['auc']:.4f} (random negatives), {c['auc_hard']:.4f} "
+                f"  classifier ROC AUC {c['auc']:.4f} (all negatives), {c['auc_hard']:.4f} "
                 f"(hard), acc {c['acc']:.4f}, shares AE encoder: {c['shares_ae_encoder']}"
             )
             lines.append(
@@ -212,7 +247,7 @@ def format_report(res: dict[str, Any]) -> str:
         if "ae_cosine" in p:
             e = p["ae_cosine"]
             lines.append(
-                f"  AE cosine ROC AUC {e['auc']:.4f} (random), {e['auc_hard']:.4f} (hard); mean "
+                f"  AE cosine ROC AUC {e['auc']:.4f} (all), {e['auc_hard']:.4f} (hard); mean "
                 f"cosine on positives: {e['mean_pos_clear']:.3f} (>= 90% visible) -> "
                 f"{e['mean_pos_occluded']:.3f} (30-60% visible), drop {e['drop_occluded']:.3f}; "
                 f"negatives {e['mean_neg']:.3f}, hard negatives {e['mean_hard_neg']:.3f}, "

@@ -203,6 +203,12 @@ class _ChpfModule(pl.LightningModule):
         return x.detach().cpu().numpy()
 
 
+def _fp32(*tensors: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """The tensors in float32: under ``trainer.precision: bf16-mixed`` the networks' outputs
+    are bfloat16; losses, cosines and validation metrics are computed in float32."""
+    return tuple(t.float() for t in tensors)
+
+
 def _plain(obj: Any) -> Any:
     """Hyper-parameters as plain JSON-like Python (dicts, lists, numbers, strings)."""
     if isinstance(obj, Mapping):
@@ -325,14 +331,14 @@ class AELitModule(_ChpfModule):
     def training_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         x = jitter_colors(self._images(batch, "input_rgb"), float(self.hparams.input_jitter))
         target = self._images(batch, "target_rgb")
-        recon, z = self.model(x)
+        recon, z = _fp32(*self.model(x))
         loss = bootstrapped_l2(recon, target, float(self.hparams.bootstrap_ratio))
         hp = self.hparams
         empty = batch["visib_fract"] <= 0 if "visib_fract" in batch else None
         views = None  # clean views: the codebook's kind of crop (black around)
         if hp.view_weight > 0 and "R_allo" in batch:
             with torch.no_grad():
-                views = self.model.encoder(target)
+                views = self.model.encoder(target).float()
             keep = np.ones(len(z), bool) if empty is None else (~empty).cpu().numpy()
             far = far_pairs(
                 batch["R_allo"].detach().cpu().double().numpy(),
@@ -348,7 +354,7 @@ class AELitModule(_ChpfModule):
             if bool(empty.any()):
                 if views is None:
                     with torch.no_grad():
-                        views = self.model.encoder(target[~empty][:16])
+                        views = self.model.encoder(target[~empty][:16]).float()
                     empty_views = views
                 else:
                     empty_views = views[~empty][:16]
@@ -368,7 +374,7 @@ class AELitModule(_ChpfModule):
         out = []
         for i in range(0, crops.shape[0], batch):
             x = self._images({"x": crops[i : i + batch].to(self.device)}, "x")
-            out.append(F.normalize(self.model.encoder(x), dim=1).cpu())
+            out.append(F.normalize(self.model.encoder(x).float(), dim=1).cpu())
         self.model.train(was_training)
         return torch.cat(out).numpy() if out else np.zeros((0, self.model.config["embedding_dim"]))
 
@@ -381,7 +387,7 @@ class AELitModule(_ChpfModule):
     def validation_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> None:
         x = self._images(batch, "input_rgb")
         target = self._images(batch, "target_rgb")
-        recon, z = self.model(x)
+        recon, z = _fp32(*self.model(x))
         loss = bootstrapped_l2(recon, target, float(self.hparams.bootstrap_ratio))
         mse = F.mse_loss(recon, target)
         bs = x.shape[0]
@@ -392,7 +398,8 @@ class AELitModule(_ChpfModule):
         self._val_outputs["z"].append(F.normalize(z[keep], dim=1))
         self._val_outputs["R"].append(batch["R_allo"][keep].float())
         if self._val_cb is None:
-            self._val_outputs["tz"].append(F.normalize(self.model.encoder(target[keep]), dim=1))
+            tz = self.model.encoder(target[keep]).float()
+            self._val_outputs["tz"].append(F.normalize(tz, dim=1))
 
     def on_validation_epoch_end(self) -> None:
         z = self._gather_cat(self._val_outputs["z"])
@@ -538,7 +545,7 @@ class CHLitModule(_ChpfModule):
             obs = jitter_colors(obs, float(self.hparams.input_jitter))
         cand = self._images(batch, "cand_rgb")
         y = 1.0 - batch["aligned"].float()
-        logit = self.model(obs, cand)
+        logit = self.model(obs, cand).float()
         hp = self.hparams
         weight = None
         if train and (hp.occluded_pos_weight != 1.0 or hp.hard_neg_weight != 1.0):

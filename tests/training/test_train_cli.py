@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import subprocess
 import sys
@@ -81,6 +82,8 @@ def test_ch_from_frozen_ae_encoder(
     res = json.loads((tmp_path / "ev.json").read_text())
     assert res["ae"]["codebook_size"] == 50 and res["ae"]["n_samples"] == 64
     assert 0 <= res["ae"]["augmented"]["median_deg"] <= 180
+    bands = res["ae"]["augmented_by_visibility"]
+    assert sum(b["n"] for b in bands) == res["ae"]["n_samples"]
     assert 0 <= res["pairs"]["classifier"]["auc"] <= 1 and res["pairs"]["n_pairs"] == 64
     assert "drop_occluded" in res["pairs"]["ae_cosine"]
     # wrong checkpoint types: one clear error each
@@ -124,3 +127,24 @@ def test_console_error_is_one_line(tmp_path: Path) -> None:
     assert r.returncode == 2
     assert r.stderr.strip().splitlines()[-1].startswith(f"error: {bogus}: not a readable")
     assert "Traceback" not in r.stderr
+
+
+def test_bf16_mixed_precision_trains_and_validates(
+    ae_dir: Path, pairs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The default configs train in bf16-mixed: losses and validation metrics stay float32."""
+    monkeypatch.chdir(tmp_path)
+    bf16 = ("--trainer.precision", "bf16-mixed")
+    ae_ckpt = _train_ae(ae_dir, tmp_path / "ae", *bf16)
+    out = tmp_path / "ch"
+    args = ["ch", "--config", CH_CFG, "--data.data_dir", str(pairs_dir), *bf16]
+    assert (
+        main([*args, "--trainer.default_root_dir", str(out), "--model.init_from_ae", str(ae_ckpt)])
+        == 0
+    )
+    for run, key in ((tmp_path / "ae", "val/retrieval_median_deg"), (out, "val/auc")):
+        rows = list(csv.DictReader(open(next(run.glob("logs/version_*/metrics.csv")))))
+        values = [float(r[key]) for r in rows if r.get(key)]
+        assert values and all(math.isfinite(v) for v in values), (run, key)
+        state = torch.load(run / "checkpoints" / "last.ckpt", weights_only=False)["state_dict"]
+        assert {v.dtype for v in state.values() if v.is_floating_point()} == {torch.float32}

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from training.evaluate import by_visibility
 from training.lit import bootstrapped_l2, classifier_metrics
 from training.metrics import cosine_retrieval, roc_auc, symmetry_aware_angle
 
@@ -162,3 +163,17 @@ def test_view_separation_pushes_the_hardest_far_view_away() -> None:
     none = torch.zeros(2, 3, dtype=torch.bool)
     assert float(view_separation(z, views, none, 0.5)) == 0.0
     assert float(view_separation(z, views, far, 0.7)) == 0.0
+
+
+def test_retrieval_by_visibility_bands() -> None:
+    err = np.array([5.0, 40.0, 170.0, 10.0, 20.0, 160.0, 1.0])
+    visib = np.array([1.0, 0.95, 0.5, 0.3, 0.59, 0.2, 0.0])  # 0.0: empty, in no band
+    rows = {tuple(r["visib"]): r for r in by_visibility(err, visib)}
+    assert rows[(0.9, 1.0)]["n"] == 2 and rows[(0.9, 1.0)]["median_deg"] == 22.5
+    assert rows[(0.6, 0.9)]["n"] == 0 and np.isnan(rows[(0.6, 0.9)]["median_deg"])
+    occl = rows[(0.3, 0.6)]
+    assert occl["n"] == 3 and occl["median_deg"] == 20.0
+    assert occl["pct_below"] == pytest.approx(200 / 3) and occl["pct_above150"] == pytest.approx(
+        100 / 3
+    )
+    assert rows[(0.0, 0.3)]["n"] == 1 and rows[(0.0, 0.3)]["pct_above150"] == 100.0
