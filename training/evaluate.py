@@ -131,21 +131,18 @@ VISIBILITY_BANDS = ((0.9, 1.0), (0.6, 0.9), (0.3, 0.6), (0.0, 0.3))
 
 def by_visibility(err_deg: np.ndarray, visib: np.ndarray) -> list[dict[str, Any]]:
     """Retrieval summaries of the errors ``err_deg`` (N,) degrees per band of the visible
-    fraction ``visib`` (N,) (bands [lo, hi), the top one closed), with the crop count and the
-    share (%) turned more than 150 degrees (front/back look-alikes)."""
+    fraction ``visib`` (N,): bands [lo, hi), the top one closed, empty crops (visib 0) in none;
+    with the crop count and the share (%) turned more than 150 degrees (front/back look-alikes)."""
     rows = []
     for lo, hi in VISIBILITY_BANDS:
-        m = (visib >= lo) & ((visib < hi) | (hi >= 1.0))
-        if lo == 0.0:
-            m &= visib > 0
+        m = (visib >= lo) & ((visib < hi) | (hi >= 1.0)) & (visib > 0)
+        above150 = float(100.0 * np.mean(err_deg[m] > 150)) if m.any() else float("nan")
         rows.append(
             {
                 "visib": [lo, hi],
                 "n": int(m.sum()),
                 **retrieval_summary(err_deg[m], 30.0),
-                "pct_above150": float(100.0 * np.mean(err_deg[m] > 150))
-                if m.any()
-                else float("nan"),
+                "pct_above150": above150,
             }
         )
     return rows
