@@ -328,6 +328,10 @@ class AELitModule(_ChpfModule):
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.model(x)
 
+    def _encode(self, x: torch.Tensor) -> torch.Tensor:
+        """Raw embeddings ``(B, E)`` float32 of images ``(B, 3, S, S)`` (see ``_fp32``)."""
+        return self.model.encoder(x).float()
+
     def training_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         x = jitter_colors(self._images(batch, "input_rgb"), float(self.hparams.input_jitter))
         target = self._images(batch, "target_rgb")
@@ -338,7 +342,7 @@ class AELitModule(_ChpfModule):
         views = None  # clean views: the codebook's kind of crop (black around)
         if hp.view_weight > 0 and "R_allo" in batch:
             with torch.no_grad():
-                views = self.model.encoder(target).float()
+                views = self._encode(target)
             keep = np.ones(len(z), bool) if empty is None else (~empty).cpu().numpy()
             far = far_pairs(
                 batch["R_allo"].detach().cpu().double().numpy(),
@@ -354,7 +358,7 @@ class AELitModule(_ChpfModule):
             if bool(empty.any()):
                 if views is None:
                     with torch.no_grad():
-                        views = self.model.encoder(target[~empty][:16]).float()
+                        views = self._encode(target[~empty][:16])
                     empty_views = views
                 else:
                     empty_views = views[~empty][:16]
@@ -374,7 +378,7 @@ class AELitModule(_ChpfModule):
         out = []
         for i in range(0, crops.shape[0], batch):
             x = self._images({"x": crops[i : i + batch].to(self.device)}, "x")
-            out.append(F.normalize(self.model.encoder(x).float(), dim=1).cpu())
+            out.append(F.normalize(self._encode(x), dim=1).cpu())
         self.model.train(was_training)
         return torch.cat(out).numpy() if out else np.zeros((0, self.model.config["embedding_dim"]))
 
@@ -398,8 +402,7 @@ class AELitModule(_ChpfModule):
         self._val_outputs["z"].append(F.normalize(z[keep], dim=1))
         self._val_outputs["R"].append(batch["R_allo"][keep].float())
         if self._val_cb is None:
-            tz = self.model.encoder(target[keep]).float()
-            self._val_outputs["tz"].append(F.normalize(tz, dim=1))
+            self._val_outputs["tz"].append(F.normalize(self._encode(target[keep]), dim=1))
 
     def on_validation_epoch_end(self) -> None:
         z = self._gather_cat(self._val_outputs["z"])
