@@ -6,7 +6,9 @@ devices, strategy=ddp, num_nodes, precision, max_steps, ...), ``--model.*``, ``-
 ``--checkpoint.*`` (ModelCheckpoint: best by the validation metric + ``last.ckpt``, by default in
 ``{trainer.default_root_dir}/checkpoints``), CSV and TensorBoard logs in
 ``trainer.default_root_dir``, and ``--ckpt_path`` to resume (a path, or ``last``).
-``--print_config`` prints the full resolved config.
+``--print_config`` prints the full resolved config. ``trainer.precision: null`` (the default
+configs) picks bf16 mixed precision where the hardware computes it natively, else float32
+(``training.precision``).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from typing import Any
 
 from chpf.cli import run_main
 from chpf.errors import ConfigError
+from training.precision import auto_precision
 
 USAGE = (
     "usage: chpf-train {ae,ch} --config CONFIG.yaml [--trainer.max_steps N] "
@@ -68,6 +71,9 @@ def _make_cli_class(kind: str) -> type:
             root = cfg["trainer.default_root_dir"] or os.getcwd()
             if cfg["checkpoint.dirpath"] is None:
                 cfg["checkpoint.dirpath"] = str(Path(root) / "checkpoints")
+            if cfg["trainer.precision"] is None:
+                cfg["trainer.precision"] = auto_precision(cfg["trainer.accelerator"])
+                print(f"trainer.precision: {cfg['trainer.precision']} (chosen for this machine)")
 
         def instantiate_trainer(self, **kwargs: Any) -> Any:
             trainer_cfg = self._get(self.config_init, "trainer", default={})
