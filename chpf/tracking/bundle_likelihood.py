@@ -29,17 +29,10 @@ from chpf.crops import CropSpec, crop_affines, extract_crops
 from chpf.errors import ConfigError
 from chpf.geometry import allocentric_to_egocentric, egocentric_to_allocentric
 from chpf.tracking.candidates import backproject, valid_box
+from chpf.tracking.config import C_MODES, L_FROM_COS
 from chpf.tracking.depth_scores import depth_scores
 from chpf.tracking.timing import ms_since
 from chpf.tracking.types import CodebookScores, Frame, Scores
-
-C_MODES = ("learned", "depth", "both", "none")
-L_FROM_COS = ("clip", "affine")
-"""How the cosine c in [-1, 1] becomes the unnormalised likelihood L in [0, 1] that SRL, Aug.
-MCL and CH-PF sum: "clip" L = max(c, 0); "affine" L = (1 + c) / 2. With the trained encoders,
-whose embeddings of unrelated views are near orthogonal (c ~ 0), "clip" gives the candidates
-drawn blindly from phi_cand L ~ 0 next to C ~ 1, which holds CH-PF's alpha near 1 even on a
-correct belief; "affine" keeps the baseline that an Augmented Autoencoder's cosine has."""
 
 
 def likelihood_from_cosine(c: np.ndarray, mode: str) -> np.ndarray:

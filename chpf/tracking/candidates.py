@@ -99,13 +99,12 @@ class CandidateSampler:
             z = np.where(np.isnan(z), np.median(good) if good.size else np.nan, z)
         return z
 
-    def sample(
-        self, n: int, frame: Frame, rng: np.random.Generator
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """n poses (R (n,3,3), t (n,3)) from phi_cand; frame.box must be a valid box."""
+    def translations(self, n: int, frame: Frame, rng: np.random.Generator) -> np.ndarray:
+        """n translations t (n,3) from phi_cand (what PoseRBPF's particles are); frame.box must
+        be a valid box."""
         box = valid_box(frame.box)
         if box is None:
-            raise ValueError("CandidateSampler.sample needs a frame with a valid box")
+            raise ValueError("CandidateSampler needs a frame with a valid box")
         K = np.asarray(frame.K, dtype=np.float64)
         margin = 0.5 * (1.0 - self.uv_fraction)
         u = box[0] + (margin + self.uv_fraction * rng.random(n)) * box[2]
@@ -117,7 +116,13 @@ class CandidateSampler:
             z = np.where(np.isnan(z_meas), z_rgb, z_meas + offset)
         else:
             z = z_rgb
-        t = backproject(u, v, z, K)
+        return backproject(u, v, z, K)
+
+    def sample(
+        self, n: int, frame: Frame, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """n poses (R (n,3,3), t (n,3)) from phi_cand; frame.box must be a valid box."""
+        t = self.translations(n, frame, rng)
         if self.rotations is None:
             return random_rotations(n, rng), t
         return self.rotations.sample(n, frame, t, rng), t

@@ -19,6 +19,14 @@ METHODS = ("chpf", "srl", "augmcl", "annealing", "e2e", "poserbpf", "poserbpf++"
 PAPER_METHODS = ("chpf", "srl", "augmcl", "annealing", "e2e", "poserbpf", "poserbpf++")
 """The methods compared in the paper (``--method all``)."""
 MODALITIES = ("rgb", "rgbd")
+C_MODES = ("learned", "depth", "both", "none")
+"""Where C comes from: the learned classifier, C_depth, their mean, or nowhere (C = None)."""
+L_FROM_COS = ("clip", "affine")
+"""How the cosine c in [-1, 1] becomes the unnormalised likelihood L in [0, 1] that SRL, Aug.
+MCL and CH-PF sum: "clip" L = max(c, 0); "affine" L = (1 + c) / 2. With the trained encoders,
+whose embeddings of unrelated views are near orthogonal (c ~ 0), "clip" gives the candidates
+drawn blindly from phi_cand L ~ 0 next to C ~ 1, which holds CH-PF's alpha near 1 even on a
+correct belief; "affine" keeps the baseline that an Augmented Autoencoder's cosine has."""
 
 
 @dataclass
@@ -109,10 +117,10 @@ class TrackConfig:
         ):
             if not 0.0 <= getattr(self, key) <= 1.0:
                 raise bad(key, "must be in [0, 1]")
-        if self.c_mode not in ("learned", "depth", "both", "none"):
-            raise bad("c_mode", "must be learned, depth, both or none")
-        if self.l_from_cos not in ("clip", "affine"):
-            raise bad("l_from_cos", "must be clip or affine")
+        if self.c_mode not in C_MODES:
+            raise bad("c_mode", f"must be one of {', '.join(C_MODES)}")
+        if self.l_from_cos not in L_FROM_COS:
+            raise bad("l_from_cos", f"must be one of {', '.join(L_FROM_COS)}")
         if self.rbpf_rotation_estimate not in ("argmax", "mean"):
             raise bad("rbpf_rotation_estimate", "must be argmax or mean")
         if self.threads < 1:

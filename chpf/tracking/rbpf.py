@@ -138,7 +138,7 @@ class RaoBlackwellisedFilter:
         if self.t is None or self.P is None:
             if box is None:
                 return self._result(_NAN, _NAN, _NAN, {"total": ms_since(t_start)}, False)
-            self.set_particles(self.candidates.sample(self.n, frame, self.rng)[1])
+            self.set_particles(self.candidates.translations(self.n, frame, self.rng))
             stage_ms["init"] = ms_since(t0)
         else:
             self.t = self.motion.predict_translation(self.t, self.rng)
@@ -205,7 +205,7 @@ class RaoBlackwellisedFilter:
             parts_t.append(self.t[idx])
             parts_p.append(post[idx])
         if n_cand > 0:
-            parts_t.append(self.candidates.sample(n_cand, frame, self.rng)[1])
+            parts_t.append(self.candidates.translations(n_cand, frame, self.rng))
             parts_p.append(np.full((n_cand, self.k), 1.0 / self.k, np.float32))
         self.t = np.concatenate(parts_t)
         self.P = np.concatenate(parts_p)

@@ -93,3 +93,32 @@ def test_poserbpf_same_seed_same_poses(sequence):
         outs.append(np.concatenate([np.concatenate([r.R.ravel(), r.t]) for r in res]))
     np.testing.assert_array_equal(outs[0], outs[1])
     assert not np.allclose(outs[0], outs[2])
+
+
+class CountingRotations:
+    """A RotationSource that counts its calls (uniform rotations)."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def sample(self, n, frame, t, rng):
+        from chpf.geometry import random_rotations
+
+        self.calls += 1
+        return random_rotations(n, rng)
+
+
+def test_poserbpf_draws_only_translations_from_phi_cand(sequence):
+    """PoseRBPF's particles are translations: reinvigoration never asks phi_cand's rotation
+    source (an informed source costs an encoder pass), and the translations it draws are the
+    ones phi_cand's full poses would have."""
+    source = CountingRotations()
+    oracle = OracleLikelihood(grid=GRID)
+    filt = make_rbpf(oracle, reinvigorate=0.5)
+    filt.candidates.rotations = source
+    track(filt, oracle, sequence, range(5))
+    assert source.calls == 0
+    frame = Frame(sequence.rgb, None, sequence.K, sequence.box(0))
+    sampler = CandidateSampler(z_range=(0.6, 1.0), rotations=CountingRotations())
+    t = sampler.translations(20, frame, np.random.default_rng(3))
+    np.testing.assert_array_equal(t, sampler.sample(20, frame, np.random.default_rng(3))[1])
