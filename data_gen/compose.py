@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from chpf.crops import CropSpec, crop_affines, extract_crops
-from chpf.geometry import RotationGrid, random_rotations
+from chpf.geometry import RotationGrid
 from data_gen import augment
 from data_gen.pool import (
     ObsPool,
@@ -48,13 +48,7 @@ from data_gen.pool import (
     occluder_objects,
     occluder_pool,
 )
-from data_gen.rotations import (
-    half_turns,
-    perturb_bounded,
-    rotations_at_angle,
-    symmetric_angle,
-    symmetry_set,
-)
+from data_gen.rotations import draw_candidates, symmetry_set
 
 
 @dataclass
@@ -279,50 +273,10 @@ class Composer:
         self, R_true: np.ndarray, aligned: np.ndarray, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:
         """Codebook indices (N,) and symmetry-aware angles (N,) rad of candidates for true
-        allocentric rotations R_true (N,3,3): positives (aligned=1) near R_true, negatives at
-        least ``neg_min_angle_deg`` away (hard ones drawn at ``hard_negative_range_deg``, flips
-        as half turns about an object axis perturbed like positives)."""
-        p = self.cfg["pairs"]
-        grid = self.grid
-        n = len(R_true)
-        idx = np.empty(n, np.int64)
-        pos = aligned.astype(bool)
-        if pos.any():
-            Rh = perturb_bounded(
-                R_true[pos],
-                np.radians(p["pos_rot_sigma_deg"]),
-                np.radians(p["pos_rot_max_deg"]),
-                rng,
-            )
-            idx[pos] = grid.nearest(Rh)
-        neg = np.flatnonzero(~pos)
-        kind = rng.random(len(neg))
-        hard = kind < p["hard_negative_share"]
-        flip = ~hard & (kind < p["hard_negative_share"] + p["flip_negative_share"])
-        lo, hi = np.radians(p["hard_negative_range_deg"])
-        pos_sigma, pos_max = np.radians([p["pos_rot_sigma_deg"], p["pos_rot_max_deg"]])
-        min_ang = np.radians(p["neg_min_angle_deg"])
-        todo = np.ones(len(neg), bool)
-        for it in range(200):
-            if not todo.any():
-                break
-            sel = neg[todo]
-            # give up on hard and flip draws that keep snapping too close (symmetric objects)
-            h, f = hard[todo] & (it < 100), flip[todo] & (it < 100)
-            Rh = random_rotations(len(sel), rng)
-            if h.any():
-                Rh[h] = rotations_at_angle(R_true[sel[h]], lo, hi, rng)
-            if f.any():
-                Rh[f] = perturb_bounded(half_turns(R_true[sel[f]], rng), pos_sigma, pos_max, rng)
-            idx[sel] = grid.nearest(Rh)
-            ang = symmetric_angle(
-                R_true[sel], grid.rotations[idx[sel]], self.sym_rots, self.sym_axes
-            )
-            todo[np.flatnonzero(todo)[ang >= min_ang]] = False
-        if todo.any():
-            raise RuntimeError("could not draw negatives far enough from the true orientation")
-        ang = symmetric_angle(R_true, grid.rotations[idx], self.sym_rots, self.sym_axes)
-        return idx, ang
+        allocentric rotations R_true (N,3,3) (``data_gen.rotations.draw_candidates``)."""
+        return draw_candidates(
+            self.grid, R_true, aligned, self.cfg["pairs"], self.sym_rots, self.sym_axes, rng
+        )
 
     def pairs(self, rng: np.random.Generator, n: int, debug: bool = False) -> dict:
         """n pair samples (spec fields; with ``debug`` also obs/cand masks, entry, t_est)."""

@@ -86,6 +86,59 @@ def perturb_bounded(
     return axis_angle_to_matrix(w) @ R
 
 
+def draw_candidates(
+    grid: RotationGrid,
+    R_true: np.ndarray,
+    aligned: np.ndarray,
+    p: dict,
+    sym_rots: np.ndarray,
+    sym_axes: np.ndarray,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Codebook indices (N,) of ``grid`` and symmetry-aware angles (N,) rad of hypotheses for
+    true allocentric rotations R_true (N,3,3), drawn as the ``pairs`` config ``p`` says:
+    positives (aligned=1) near R_true, negatives at least ``neg_min_angle_deg`` away (hard ones
+    drawn at ``hard_negative_range_deg``, flips as half turns about an object axis perturbed
+    like positives). Symmetries: ``symmetry_set``."""
+    n = len(R_true)
+    idx = np.empty(n, np.int64)
+    pos = aligned.astype(bool)
+    if pos.any():
+        Rh = perturb_bounded(
+            R_true[pos],
+            np.radians(p["pos_rot_sigma_deg"]),
+            np.radians(p["pos_rot_max_deg"]),
+            rng,
+        )
+        idx[pos] = grid.nearest(Rh)
+    neg = np.flatnonzero(~pos)
+    kind = rng.random(len(neg))
+    hard = kind < p["hard_negative_share"]
+    flip = ~hard & (kind < p["hard_negative_share"] + p["flip_negative_share"])
+    lo, hi = np.radians(p["hard_negative_range_deg"])
+    pos_sigma, pos_max = np.radians([p["pos_rot_sigma_deg"], p["pos_rot_max_deg"]])
+    min_ang = np.radians(p["neg_min_angle_deg"])
+    todo = np.ones(len(neg), bool)
+    for it in range(200):
+        if not todo.any():
+            break
+        sel = neg[todo]
+        # give up on hard and flip draws that keep snapping too close (symmetric objects)
+        h, f = hard[todo] & (it < 100), flip[todo] & (it < 100)
+        Rh = random_rotations(len(sel), rng)
+        if h.any():
+            Rh[h] = rotations_at_angle(R_true[sel[h]], lo, hi, rng)
+        if f.any():
+            Rh[f] = perturb_bounded(half_turns(R_true[sel[f]], rng), pos_sigma, pos_max, rng)
+        idx[sel] = grid.nearest(Rh)
+        ang = symmetric_angle(R_true[sel], grid.rotations[idx[sel]], sym_rots, sym_axes)
+        todo[np.flatnonzero(todo)[ang >= min_ang]] = False
+    if todo.any():
+        raise RuntimeError("could not draw negatives far enough from the true orientation")
+    ang = symmetric_angle(R_true, grid.rotations[idx], sym_rots, sym_axes)
+    return idx, ang
+
+
 def grid_spacing_deg(grid: RotationGrid, n: int = 20000, seed: int = 0) -> dict[str, float]:
     """Angle (deg) from random rotations to their nearest grid entry: median, p99 and max of a
     seeded sample of ``n`` (the covering radius is close to the max)."""

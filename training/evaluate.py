@@ -148,6 +148,22 @@ def by_visibility(err_deg: np.ndarray, visib: np.ndarray) -> list[dict[str, Any]
     return rows
 
 
+def hard_auc_by_visibility(
+    logit: np.ndarray, pos: np.ndarray, hard: np.ndarray, visib: np.ndarray
+) -> list[dict[str, Any]]:
+    """ROC AUC of the misalignment ``logit`` (N,) on the positives against the hard negatives
+    (boolean masks, N) of each visibility band of ``VISIBILITY_BANDS`` but the lowest (a pair
+    counts in the band of its own ``visib``; bands as in ``by_visibility``)."""
+    rows = []
+    for lo, hi in VISIBILITY_BANDS[:-1]:
+        band = (visib >= lo) & ((visib < hi) | (hi >= 1.0))
+        p, h = pos & band, hard & band
+        sel = p | h
+        auc = roc_auc(logit[sel], h[sel].astype(np.int64)) if p.any() and h.any() else float("nan")
+        rows.append({"visib": [lo, hi], "n_pos": int(p.sum()), "n_hard": int(h.sum()), "auc": auc})
+    return rows
+
+
 def evaluate_pairs(
     pairs_dir: str,
     ae_path: str | None,
@@ -180,6 +196,7 @@ def evaluate_pairs(
             "shares_ae_encoder": bool(info.get("shares_ae_encoder", False)),
             **{k: m[k] for k in ("acc", "auc", "auc_hard", "aligned_rate_pos", "empty_rejected")},
             "aligned_rate_occluded": m["aligned_rate_occluded"],
+            "auc_hard_by_visibility": hard_auc_by_visibility(logit, pos, hard, visib),
         }
     if ae_path:
         ae, _ = load_autoencoder(ae_path)
@@ -241,6 +258,12 @@ def format_report(res: dict[str, Any]) -> str:
                 f"{100 * c['aligned_rate_occluded']:.1f} % of those 30-60% visible; empty crops "
                 f"called misaligned: {100 * c['empty_rejected']:.1f} %"
             )
+            bands = [
+                f"{b['visib'][0]:.1f}-{b['visib'][1]:.1f} visible {b['auc']:.4f} "
+                f"({b['n_pos']} pos / {b['n_hard']} hard)"
+                for b in c["auc_hard_by_visibility"]
+            ]
+            lines.append("  hard-negative AUC by visibility: " + ", ".join(bands))
         if "ae_cosine" in p:
             e = p["ae_cosine"]
             lines.append(

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -21,12 +21,14 @@ import torch
 import torch.nn.functional as F
 
 from chpf.errors import ConfigError, DatasetError
+from data_gen.config import default_config
 from training.checkpoints import (
     CHECKPOINT_FORMAT_VERSION,
     checkpoint_info,
     load_autoencoder,
     state_sha256,
 )
+from training.extra_pairs import CandidateCodebook
 from training.metrics import (
     cosine_retrieval,
     retrieval_summary,
@@ -87,6 +89,25 @@ def view_separation(
     cos = F.normalize(z, dim=1) @ F.normalize(views, dim=1).T
     hardest = cos.masked_fill(~far, -1.0).max(dim=1).values
     return F.relu(hardest - margin).mean()
+
+
+def view_matching(
+    z: torch.Tensor, views: torch.Tensor, negatives: torch.Tensor, temperature: float
+) -> torch.Tensor:
+    """InfoNCE of each crop's embedding ``z_i`` (B,E) against the clean-view embeddings
+    ``views`` (B,E) of the batch: view i is its match, the views j with ``negatives[i, j]``
+    (B,B) bool are the alternatives (others, e.g. views of nearly the same orientation, are
+    left out). Rows without a negative count as 0. This is the codebook look-up itself, trained
+    directly: the crop must be closer to its own view than to the other orientations'.
+    """
+    rows = negatives.any(dim=1)
+    if not bool(rows.any()):
+        return z.sum() * 0.0
+    logits = F.normalize(z, dim=1) @ F.normalize(views, dim=1).T / temperature
+    eye = torch.eye(len(z), dtype=torch.bool, device=z.device)
+    logits = logits.masked_fill(~(negatives | eye), float("-inf"))
+    target = torch.arange(len(z), device=z.device)
+    return F.cross_entropy(logits[rows], target[rows])
 
 
 def far_pairs(
@@ -195,6 +216,25 @@ class _ChpfModule(pl.LightningModule):
             keys = ("crop", "object", "object_fingerprint", "object_info", "data_dir")
             self.data_info = {k: info.get(k) for k in keys}
 
+    @torch.no_grad()
+    def embed_crops(
+        self,
+        fn: Callable[[torch.Tensor], torch.Tensor],
+        crops_u8: torch.Tensor | np.ndarray,
+        batch: int = 256,
+    ) -> np.ndarray:
+        """``fn`` (images ``(B, 3, S, S)`` -> embeddings ``(B, E)``) over uint8 crops
+        ``(N, S, S, 3)`` in batches, in eval mode -> float32 ``(N, E)``."""
+        crops = torch.as_tensor(np.asarray(crops_u8))
+        was_training = self.model.training
+        self.model.eval()
+        out = []
+        for i in range(0, crops.shape[0], batch):
+            x = self._images({"x": crops[i : i + batch].to(self.device)}, "x")
+            out.append(fn(x).float().cpu())
+        self.model.train(was_training)
+        return torch.cat(out).numpy()
+
     def _gather_cat(self, chunks: list[torch.Tensor]) -> np.ndarray:
         """Concatenate per-step tensors and gather them from all ranks (numpy)."""
         x = torch.cat(chunks) if chunks else torch.zeros(0)
@@ -225,8 +265,9 @@ def _plain(obj: Any) -> Any:
 # ----------------------------------------------------------------------------- validation codebook
 
 
-def load_val_codebook(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Arrays of a validation codebook npz (see ``training.codebook``); DatasetError if bad."""
+def load_val_codebook(path: str | os.PathLike, size: int | None = None) -> dict[str, np.ndarray]:
+    """Arrays of a codebook npz (see ``training.codebook``); DatasetError if bad, ConfigError
+    if its crops are not ``size`` pixels (when given)."""
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: validation codebook not found")
@@ -240,6 +281,11 @@ def load_val_codebook(path: str | os.PathLike) -> dict[str, np.ndarray]:
             raise DatasetError(f"{path}: codebook lacks array '{k}'")
     if cb["crops"].ndim != 4 or cb["crops"].shape[0] != cb["rotations"].shape[0]:
         raise DatasetError(f"{path}: crops {cb['crops'].shape} do not match rotations")
+    if size is not None and cb["crops"].shape[1] != size:
+        raise ConfigError(
+            f"{path}: codebook crop size {cb['crops'].shape[1]} differs from the model "
+            f"config's size {size}"
+        )
     return cb
 
 
@@ -278,6 +324,10 @@ class AELitModule(_ChpfModule):
             against the clean views of the batch's other orientations.
         view_margin: cosine below which a crop and a far view count as separated.
         view_min_angle_deg: orientations more than this apart (up to symmetry) count as far.
+        match_weight: weight of ``view_matching`` in the loss (0 = off): each crop against its
+            own clean view and the batch's views of other orientations (InfoNCE).
+        match_temperature: softmax temperature of ``view_matching``.
+        match_min_angle_deg: views closer than this to the crop's orientation are no negatives.
     """
 
     model_type = "ae"
@@ -299,6 +349,9 @@ class AELitModule(_ChpfModule):
         view_weight: float = 1.0,
         view_margin: float = 0.5,
         view_min_angle_deg: float = 90.0,
+        match_weight: float = 0.0,
+        match_temperature: float = 0.1,
+        match_min_angle_deg: float = 20.0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -317,12 +370,7 @@ class AELitModule(_ChpfModule):
     def setup(self, stage: str) -> None:
         super().setup(stage)
         if self.hparams.val_codebook and self._val_cb is None:
-            cb = load_val_codebook(self.hparams.val_codebook)
-            if cb["crops"].shape[1] != self._model_size():
-                raise ConfigError(
-                    f"{self.hparams.val_codebook}: codebook crop size {cb['crops'].shape[1]} "
-                    f"differs from the model config's size {self._model_size()}"
-                )
+            cb = load_val_codebook(self.hparams.val_codebook, self._model_size())
             self._val_cb = cb
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -340,19 +388,25 @@ class AELitModule(_ChpfModule):
         hp = self.hparams
         empty = batch["visib_fract"] <= 0 if "visib_fract" in batch else None
         views = None  # clean views: the codebook's kind of crop (black around)
-        if hp.view_weight > 0 and "R_allo" in batch:
+        if (hp.view_weight > 0 or hp.match_weight > 0) and "R_allo" in batch:
             with torch.no_grad():
                 views = self._encode(target)
             keep = np.ones(len(z), bool) if empty is None else (~empty).cpu().numpy()
-            far = far_pairs(
-                batch["R_allo"].detach().cpu().double().numpy(),
-                keep,
-                float(hp.view_min_angle_deg),
-                *manifest_symmetries(self.data_info.get("object_info")),
-            )
-            sep = view_separation(z, views, torch.from_numpy(far).to(z.device), hp.view_margin)
-            self.log("train/view_sep", sep)
-            loss = loss + float(hp.view_weight) * sep
+            R = batch["R_allo"].detach().cpu().double().numpy()
+            sym = manifest_symmetries(self.data_info.get("object_info"))
+
+            def apart(min_deg: float) -> torch.Tensor:
+                return torch.from_numpy(far_pairs(R, keep, min_deg, *sym)).to(z.device)
+
+            if hp.view_weight > 0:
+                sep = view_separation(z, views, apart(hp.view_min_angle_deg), hp.view_margin)
+                self.log("train/view_sep", sep)
+                loss = loss + float(hp.view_weight) * sep
+            if hp.match_weight > 0:
+                negatives = apart(hp.match_min_angle_deg)
+                match = view_matching(z, views, negatives, float(hp.match_temperature))
+                self.log("train/view_match", match)
+                loss = loss + float(hp.match_weight) * match
         if hp.empty_weight > 0 and empty is not None:
             empty_views = None
             if bool(empty.any()):
@@ -369,18 +423,9 @@ class AELitModule(_ChpfModule):
         return loss
 
     # --- validation -------------------------------------------------------------------------
-    @torch.no_grad()
     def embed(self, crops_u8: torch.Tensor | np.ndarray, batch: int = 256) -> np.ndarray:
         """L2-normalised embeddings ``(N, E)`` of uint8 crops ``(N, S, S, 3)``."""
-        crops = torch.as_tensor(np.asarray(crops_u8))
-        was_training = self.model.training
-        self.model.eval()
-        out = []
-        for i in range(0, crops.shape[0], batch):
-            x = self._images({"x": crops[i : i + batch].to(self.device)}, "x")
-            out.append(F.normalize(self._encode(x), dim=1).cpu())
-        self.model.train(was_training)
-        return torch.cat(out).numpy() if out else np.zeros((0, self.model.config["embedding_dim"]))
+        return self.embed_crops(lambda x: F.normalize(self._encode(x), dim=1), crops_u8, batch)
 
     def on_validation_epoch_start(self) -> None:
         self._val_outputs = {"z": [], "R": [], "tz": []}
@@ -440,6 +485,10 @@ class CHLitModule(_ChpfModule):
         freeze_encoder: shared-encoder mode -- the observed (and candidate) branch IS the
             autoencoder's encoder, frozen; only the head trains, so at run time one encoder
             pass per crop serves both L and C. Needs ``init_from_ae``.
+        freeze_candidate: the candidate branch IS the autoencoder's encoder, frozen; only the
+            observed branch and the head train. A step then back-propagates through one
+            encoder pass instead of two, and the bundle's candidate embeddings are the
+            autoencoder's codebook embeddings (no second codebook). Needs ``init_from_ae``.
         lr: Adam learning rate of the head (peak).
         encoder_lr_scale: encoder learning rate = ``lr * encoder_lr_scale`` (when trained).
         weight_decay, warmup_steps, min_lr_ratio, channels_last: as in ``AELitModule``.
@@ -450,6 +499,14 @@ class CHLitModule(_ChpfModule):
         occluded_pos_weight: BCE weight of positives with visib_fract <= occluded_visib[1]
             (occlusion must not count against a pose), 1 = plain BCE.
         hard_neg_weight: BCE weight of negatives whose angle is in ``hard_negative_deg``.
+        extra_pairs: hypotheses per observed crop besides its own pair (0 = off), drawn like
+            the data's candidates and scored against the frozen candidate embeddings of
+            ``candidate_codebook`` (``training.extra_pairs``): many pairs per encoder pass.
+            Needs ``freeze_candidate``.
+        candidate_codebook: npz of ``python -m training.codebook`` (grid rotations and clean
+            crops of the object) for ``extra_pairs``.
+        extra_pairs_mix: keys of the chpf-gen-data ``pairs`` config that the extra pairs draw
+            differently from the data (e.g. ``{hard_negative_share: 0.7}``).
     """
 
     model_type = "ch"
@@ -459,6 +516,7 @@ class CHLitModule(_ChpfModule):
         classifier: dict[str, Any] | None = None,
         init_from_ae: str | None = None,
         freeze_encoder: bool = False,
+        freeze_candidate: bool = False,
         lr: float = 1e-3,
         encoder_lr_scale: float = 0.3,
         weight_decay: float = 0.0,
@@ -470,25 +528,42 @@ class CHLitModule(_ChpfModule):
         occluded_visib: tuple[float, float] = (0.3, 0.6),
         occluded_pos_weight: float = 1.0,
         hard_neg_weight: float = 1.0,
+        extra_pairs: int = 0,
+        candidate_codebook: str | None = None,
+        extra_pairs_mix: dict[str, Any] | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
         if occluded_pos_weight <= 0 or hard_neg_weight <= 0:
             raise ConfigError("occluded_pos_weight and hard_neg_weight must be > 0")
+        if extra_pairs < 0:
+            raise ConfigError(f"extra_pairs must be >= 0, got {extra_pairs}")
+        if extra_pairs and not (freeze_candidate and candidate_codebook):
+            raise ConfigError("extra_pairs needs freeze_candidate and a candidate_codebook")
+        unknown = set(extra_pairs_mix or {}) - set(default_config()["pairs"])
+        if unknown:
+            raise ConfigError(f"extra_pairs_mix: unknown pairs keys {sorted(unknown)}")
         cfg = full_classifier_config(classifier)
         self.ae_info: dict[str, Any] | None = None
-        if freeze_encoder and not init_from_ae:
-            raise ConfigError("freeze_encoder needs init_from_ae (an autoencoder checkpoint)")
+        for key, on in (("freeze_encoder", freeze_encoder), ("freeze_candidate", freeze_candidate)):
+            if on and not init_from_ae:
+                raise ConfigError(f"{key} needs init_from_ae (an autoencoder checkpoint)")
+        if freeze_encoder and freeze_candidate:
+            raise ConfigError("freeze_encoder already freezes both branches: drop freeze_candidate")
         if init_from_ae:
             self.ae_info = checkpoint_info(init_from_ae, expect="ae")
             cfg["encoder"] = dict(self.ae_info["model_config"])
         if freeze_encoder:
             cfg["share_twin"] = True
             cfg["shares_ae_encoder"] = True
+        if freeze_candidate:
+            cfg["share_twin"] = False
         self.model = CHClassifier(cfg)
-        if freeze_encoder:
-            for p in self.model.obs_encoder.parameters():
-                p.requires_grad_(False)
+        self._candidates: CandidateCodebook | None = None
+        self._pair_rng = np.random.default_rng(0)
+        frozen = self._frozen_branch()
+        if frozen is not None:
+            frozen.requires_grad_(False)
         if channels_last:
             self.model.to(memory_format=torch.channels_last)
         self.ae_encoder_sha256: str | None = None
@@ -522,10 +597,19 @@ class CHLitModule(_ChpfModule):
             )
         self._ae_loaded = True
 
+    def _frozen_branch(self) -> torch.nn.Module | None:
+        """The branch that is the autoencoder's frozen encoder, if any."""
+        if self.hparams.get("freeze_encoder", False):
+            return self.model.obs_encoder
+        if self.hparams.get("freeze_candidate", False):
+            return self.model.cand_encoder
+        return None
+
     def train(self, mode: bool = True) -> CHLitModule:
         super().train(mode)
-        if self.hparams.get("freeze_encoder", False):
-            self.model.obs_encoder.eval()
+        frozen = self._frozen_branch()
+        if frozen is not None:
+            frozen.eval()
         return self
 
     def _param_groups(self) -> list[dict[str, Any]]:
@@ -546,24 +630,74 @@ class CHLitModule(_ChpfModule):
         obs = self._images(batch, "obs_rgb")
         if train:
             obs = jitter_colors(obs, float(self.hparams.input_jitter))
-        cand = self._images(batch, "cand_rgb")
         y = 1.0 - batch["aligned"].float()
-        logit = self.model(obs, cand).float()
-        hp = self.hparams
-        weight = None
-        if train and (hp.occluded_pos_weight != 1.0 or hp.hard_neg_weight != 1.0):
-            weight = torch.ones_like(y)
-            if "visib_fract" in batch:
-                occl = (y == 0) & (batch["visib_fract"] <= hp.occluded_visib[1])
-                weight = torch.where(occl, weight * hp.occluded_pos_weight, weight)
-            if "angle_deg" in batch:
-                a = batch["angle_deg"]
-                lo, hi = hp.hard_negative_deg
-                hard = (y == 1) & (a >= lo) & (a <= hi)
-                weight = torch.where(hard, weight * hp.hard_neg_weight, weight)
-            weight = weight / weight.mean()
-        loss = F.binary_cross_entropy_with_logits(logit, y, weight=weight)
+        if train and self._candidates is not None:  # the frozen candidate views are known
+            obs_n = self.model.embed_obs(obs)
+            cand_n = self._candidates.embed(batch["cand_R_allo"].cpu().numpy()).to(obs_n)
+        else:
+            obs_n, cand_n = self.model.embed_pair(obs, self._images(batch, "cand_rgb"))
+        logit = self.model.head(obs_n, cand_n).float()
+        visib, angle = batch["visib_fract"].float(), batch["angle_deg"].float()
+        if not train:
+            return F.binary_cross_entropy_with_logits(logit, y), logit, y
+        logits, labels = logit, y
+        if self._candidates is not None:
+            m = int(self.hparams.extra_pairs)
+            idx, y_x, ang_x = self._candidates.draw(
+                batch["obs_R_allo"].detach().cpu().double().numpy(),
+                (visib > 0).cpu().numpy(),
+                m,
+                self._pair_rng,
+            )
+            cand_x = self._candidates.embeddings[torch.from_numpy(idx.reshape(-1))]
+            logit_x = self.model.head(obs_n.repeat_interleave(m, 0), cand_x.to(obs_n)).float()
+            logits = torch.cat([logit, logit_x])
+            labels = torch.cat([y, torch.from_numpy(y_x.reshape(-1)).to(y)])
+            visib = torch.cat([visib, visib.repeat_interleave(m)])
+            angle = torch.cat([angle, torch.from_numpy(ang_x.reshape(-1)).to(angle)])
+        weight = self._pair_weights(labels, visib, angle)
+        loss = F.binary_cross_entropy_with_logits(logits, labels, weight=weight)
         return loss, logit, y
+
+    def _pair_weights(
+        self, y: torch.Tensor, visib: torch.Tensor, angle: torch.Tensor
+    ) -> torch.Tensor | None:
+        """BCE weights (N,) of training pairs (labels y, 1 = misaligned): occluded positives
+        and hard negatives weighted as configured, normalised to mean 1; None if all are 1."""
+        hp = self.hparams
+        if hp.occluded_pos_weight == 1.0 and hp.hard_neg_weight == 1.0:
+            return None
+        weight = torch.ones_like(y)
+        occl = (y == 0) & (visib <= hp.occluded_visib[1])
+        weight = torch.where(occl, weight * hp.occluded_pos_weight, weight)
+        lo, hi = hp.hard_negative_deg
+        hard = (y == 1) & (angle >= lo) & (angle <= hi)
+        weight = torch.where(hard, weight * hp.hard_neg_weight, weight)
+        return weight / weight.mean()
+
+    def on_train_start(self) -> None:
+        """With ``extra_pairs``: embed the candidate codebook with the (restored) frozen
+        candidate branch, and seed the draws from the run's seed and the rank."""
+        if not self.hparams.extra_pairs:
+            return
+        cb = load_val_codebook(self.hparams.candidate_codebook, self._model_size())
+        emb = torch.from_numpy(self.embed_crops(self.model.embed_cand, cb["crops"]))
+        manifest = self.trainer.datamodule.manifest
+        data_cfg = manifest.get("config", {})
+        k_data = data_cfg.get("codebook", {}).get("size")
+        if k_data is not None and int(k_data) != len(cb["rotations"]):
+            warnings.warn(
+                f"{self.hparams.candidate_codebook}: {len(cb['rotations'])} entries, the pairs "
+                f"were drawn from a {k_data}-entry grid: their candidates are looked up at the "
+                "nearest entry",
+                stacklevel=2,
+            )
+        pairs_cfg = default_config()["pairs"]
+        pairs_cfg.update(data_cfg.get("pairs", {}))
+        pairs_cfg.update(self.hparams.extra_pairs_mix or {})
+        info = manifest.get("object_info")
+        self._candidates = CandidateCodebook(cb["rotations"], emb, pairs_cfg, info)
+        self._pair_rng = np.random.default_rng([torch.initial_seed(), self.global_rank])
 
     def training_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         loss, logit, y = self._step(batch, train=True)

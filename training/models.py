@@ -10,6 +10,9 @@ from a checkpoint's hyper-parameters:
   divisible by ``2 ** len(channels)``. ``decoder_norm: batch`` puts batch normalisation after
   each decoder layer (training only: the decoder is never exported); with leaky_relu it keeps
   the autoencoder off the "mean image" plateau where the plain version can stall.
+  ``decoder_channels`` (training only) sets the decoder's widths from the smallest resolution
+  up (``len(channels)`` entries); null mirrors the encoder. The decoder dominates the step
+  time (its last layers work at the full crop size), so narrower ones train faster.
 * head config: ``{"hidden": [256, 128]}`` -- three fully connected layers to one logit.
 * classifier config: ``{"encoder": <encoder config>, "head": <head config>,
   "share_twin": True, "shares_ae_encoder": False}``.
@@ -38,6 +41,7 @@ DEFAULT_ENCODER: dict[str, Any] = {
     "size": 64,
     "activation": "relu",
     "decoder_norm": "none",
+    "decoder_channels": None,
 }
 ACTIVATIONS = ("relu", "leaky_relu")
 DECODER_NORMS = ("none", "batch")
@@ -51,6 +55,7 @@ def encoder_config(
     size: int = 64,
     activation: str = "relu",
     decoder_norm: str = "none",
+    decoder_channels: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """Validated encoder config dict (see module docstring); ConfigError on bad values."""
     cfg = {
@@ -60,6 +65,9 @@ def encoder_config(
         "size": int(size),
         "activation": str(activation),
         "decoder_norm": str(decoder_norm),
+        "decoder_channels": None
+        if decoder_channels is None
+        else [int(c) for c in decoder_channels],
     }
     _check_encoder_config(cfg)
     return cfg
@@ -87,6 +95,12 @@ def _check_encoder_config(cfg: Mapping[str, Any]) -> None:
         raise ConfigError(
             f"encoder config: decoder_norm must be one of {DECODER_NORMS}, got {norm!r}"
         )
+    dec = cfg.get("decoder_channels")
+    if dec is not None and (len(dec) != len(ch) or any(int(c) <= 0 for c in dec)):
+        raise ConfigError(
+            f"encoder config: decoder_channels must be {len(ch)} positive integers "
+            f"(one per conv layer) or null, got {dec}"
+        )
     if size % (2 ** len(ch)) != 0:
         raise ConfigError(
             f"encoder config: size {size} is not divisible by 2**{len(ch)} (one per conv layer)"
@@ -98,6 +112,8 @@ def _full_encoder_config(cfg: Mapping[str, Any] | None) -> dict[str, Any]:
     merged.update(dict(cfg or {}))
     _check_encoder_config(merged)
     merged["channels"] = [int(c) for c in merged["channels"]]
+    if merged["decoder_channels"] is not None:
+        merged["decoder_channels"] = [int(c) for c in merged["decoder_channels"]]
     return merged
 
 
@@ -162,7 +178,7 @@ class Decoder(nn.Module):
         super().__init__()
         cfg = _full_encoder_config(config)
         self.config: dict[str, Any] = cfg
-        ch = list(reversed(cfg["channels"]))
+        ch = cfg["decoder_channels"] or list(reversed(cfg["channels"]))
         k = cfg["kernel"]
         self.in_hw = cfg["size"] // (2 ** len(ch))
         self.in_ch = ch[0]
@@ -253,13 +269,15 @@ class CHClassifier(nn.Module):
         """Normalised candidate-branch embeddings ``(B, E)``."""
         return F.normalize(self.cand_encoder(cand), dim=1)
 
-    def forward(self, obs: torch.Tensor, cand: torch.Tensor) -> torch.Tensor:
+    def embed_pair(self, obs: torch.Tensor, cand: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Normalised embeddings ``(B, E)`` of both crops (one batched pass when shared)."""
         if self.share_twin:
             both = F.normalize(self.obs_encoder(torch.cat([obs, cand], 0)), dim=1)
-            obs_n, cand_n = both[: obs.shape[0]], both[obs.shape[0] :]
-        else:
-            obs_n, cand_n = self.embed_obs(obs), self.embed_cand(cand)
-        return self.head(obs_n, cand_n)
+            return both[: obs.shape[0]], both[obs.shape[0] :]
+        return self.embed_obs(obs), self.embed_cand(cand)
+
+    def forward(self, obs: torch.Tensor, cand: torch.Tensor) -> torch.Tensor:
+        return self.head(*self.embed_pair(obs, cand))
 
 
 def full_classifier_config(config: Mapping[str, Any] | None) -> dict[str, Any]:

@@ -92,11 +92,18 @@ def test_bundle_reproduces_torch(env):
     ae, ch = env["ae"], env["ch"]
     emb = b.embed(crops)
     assert np.abs(emb - _torch_embed(ae.encoder, crops)).max() <= 1e-4
-    obs = b.ch_embed(crops)
-    assert np.abs(obs - _torch_embed(ch.obs_encoder, crops)).max() <= 1e-4
+    obs = _check_classifier(b, ch, crops, idx)
     assert np.abs(obs - emb).max() > 1e-3  # a separate classifier encoder
-    # codebook: entry idx is the pool crop idx, embedded by both branches
     assert np.abs(b.ae_codebook[idx] - emb).max() <= 1e-4
+    np.testing.assert_array_equal(b.nearest(b.grid.rotations[idx]), idx)
+
+
+def _check_classifier(b: Bundle, ch, crops: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The bundle's classifier calls equal torch's on pool crops (codebook entry idx = crop idx);
+    returns the observed-branch embeddings."""
+    obs = b.ch_embed(crops)
+    assert obs.shape == (len(idx), b.embedding_dim)
+    assert np.abs(obs - _torch_embed(ch.obs_encoder, crops)).max() <= 1e-4
     assert np.abs(b.ch_codebook[idx] - _torch_embed(ch.cand_encoder, crops)).max() <= 1e-4
     cand_idx = np.roll(idx, 3)
     p = b.p_misaligned(obs, cand_idx)
@@ -110,7 +117,31 @@ def test_bundle_reproduces_torch(env):
     with torch.no_grad():
         pre = ch.embed_obs(torch.from_numpy(crops).permute(0, 3, 1, 2).float() / 255.0)
     assert np.abs(pre.numpy() - obs).max() <= 1e-4
-    np.testing.assert_array_equal(b.nearest(b.grid.rotations[idx]), idx)
+    return obs
+
+
+def test_frozen_candidate_bundle_reuses_the_autoencoder_codebook(env, tmp_path):
+    """A classifier whose candidate branch is the frozen AE encoder: its own observed encoder
+    is exported, its candidate embeddings are the AE codebook's (not stored twice)."""
+    torch.manual_seed(1)
+    ch = CHLitModule(init_from_ae=str(env["ae_ckpt"]), freeze_candidate=True)
+    ch.setup("fit")
+    with torch.no_grad():
+        for p in ch.model.obs_encoder.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    info = {"crop": env["spec"].to_dict(), "object": OBJ, "object_fingerprint": None}
+    ckpt = _save(ch, tmp_path / "ch_frozen_cand.ckpt", info)
+    out = tmp_path / "frozen_cand"
+    export_bundle(env["ae_ckpt"], ckpt, OBJ, out, env["cfg"], progress=False)
+    with np.load(out / "codebook.npz") as z:
+        assert "ch_embeddings" not in z.files
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["ch_shares_ae_encoder"] is False and m["files"]["ch_obs_encoder"]
+    b = Bundle.load(out, threads=1)
+    np.testing.assert_array_equal(b.ch_codebook, b.ae_codebook)
+    crops, idx = _pool_crops(env)
+    obs = _check_classifier(b, ch.model.eval(), crops, idx)
+    assert np.abs(obs - b.embed(crops)).max() > 1e-3
 
 
 def test_manifest_and_files(env):

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
 
 from chpf.errors import ConfigError
 from training.checkpoints import (
@@ -85,6 +86,8 @@ def test_ch_from_frozen_ae_encoder(
     bands = res["ae"]["augmented_by_visibility"]
     assert sum(b["n"] for b in bands) == res["ae"]["n_samples"]
     assert 0 <= res["pairs"]["classifier"]["auc"] <= 1 and res["pairs"]["n_pairs"] == 64
+    hard_bands = res["pairs"]["classifier"]["auc_hard_by_visibility"]
+    assert sum(b["n_hard"] for b in hard_bands) <= res["pairs"]["n_hard_negatives"]
     assert "drop_occluded" in res["pairs"]["ae_cosine"]
     # wrong checkpoint types: one clear error each
     with pytest.raises(ConfigError, match="is a CH classifier checkpoint"):
@@ -132,7 +135,8 @@ def test_console_error_is_one_line(tmp_path: Path) -> None:
 def test_bf16_mixed_precision_trains_and_validates(
     ae_dir: Path, pairs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The default configs train in bf16-mixed: losses and validation metrics stay float32."""
+    """bf16-mixed (what the default configs choose on CPUs with bf16 units): losses and
+    validation metrics stay float32."""
     monkeypatch.chdir(tmp_path)
     bf16 = ("--trainer.precision", "bf16-mixed")
     ae_ckpt = _train_ae(ae_dir, tmp_path / "ae", *bf16)
@@ -148,3 +152,35 @@ def test_bf16_mixed_precision_trains_and_validates(
         assert values and all(math.isfinite(v) for v in values), (run, key)
         state = torch.load(run / "checkpoints" / "last.ckpt", weights_only=False)["state_dict"]
         assert {v.dtype for v in state.values() if v.is_floating_point()} == {torch.float32}
+
+
+@pytest.mark.parametrize(
+    "kind, configs",
+    [
+        ("ae", ["train_ae.yaml"]),
+        ("ae", ["train_ae.yaml", "train_ae_slim.yaml"]),
+        ("ae", ["train_ae_poserbpf.yaml"]),
+        ("ch", ["train_ch.yaml"]),
+        ("ch", ["train_ch.yaml", "train_ch_frozen.yaml"]),
+    ],
+)
+def test_shipped_configs_build_their_modules(
+    kind: str, configs: list[str], ae_ckpt: Path, tmp_path: Path
+) -> None:
+    """Each shipped config (and the documented combinations) builds its LightningModule, with
+    the required paths given as on the README's command lines."""
+    from training.lit import AELitModule, CHLitModule
+
+    model: dict = {}
+    for name in configs:
+        model.update(yaml.safe_load((ROOT / "configs" / name).read_text())["model"])
+    if kind == "ae":
+        module = AELitModule(**model)
+        assert module.model.config["size"] in (64, 128)
+        return
+    model["init_from_ae"] = str(ae_ckpt)
+    if model.get("extra_pairs"):
+        model["candidate_codebook"] = str(tmp_path / "cb.npz")  # read when training starts
+    module = CHLitModule(**model)
+    frozen = module._frozen_branch()
+    assert frozen is not None and not any(p.requires_grad for p in frozen.parameters())

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from training.evaluate import by_visibility
+from training.evaluate import by_visibility, hard_auc_by_visibility
 from training.lit import bootstrapped_l2, classifier_metrics
 from training.metrics import cosine_retrieval, roc_auc, symmetry_aware_angle
 
@@ -177,3 +177,42 @@ def test_retrieval_by_visibility_bands() -> None:
         100 / 3
     )
     assert rows[(0.0, 0.3)]["n"] == 1 and rows[(0.0, 0.3)]["pct_above150"] == 100.0
+
+
+def test_view_matching_is_the_codebook_lookup_as_a_loss() -> None:
+    """InfoNCE over the batch's views: low when every crop is nearest its own view, high when
+    it points at another's; excluded alternatives (near orientations) do not count."""
+    import torch
+
+    from training.lit import view_matching
+
+    views = torch.eye(3)
+    all_neg = ~torch.eye(3, dtype=torch.bool)
+    right = view_matching(views.clone(), views, all_neg, 0.1)
+    swapped = view_matching(views[[1, 0, 2]], views, all_neg, 0.1)
+    # exact: -log(e^10 / (e^10 + 2 e^0)) per row
+    assert float(right) == pytest.approx(-math.log(math.exp(10) / (math.exp(10) + 2)), rel=1e-3)
+    assert float(swapped) > 6.0  # rows 0 and 1 match the wrong view
+    # with crops 0 and 1 of nearly the same orientation, neither is the other's negative
+    near = all_neg.clone()
+    near[0, 1] = near[1, 0] = False
+    relaxed = view_matching(views[[1, 0, 2]], views, near, 0.1)
+    assert float(relaxed) < float(swapped)
+    # no negatives at all: nothing to learn
+    assert float(view_matching(views, views, torch.zeros(3, 3, dtype=torch.bool), 0.1)) == 0.0
+    z = views[[1, 0, 2]].clone().requires_grad_(True)
+    view_matching(z, views, all_neg, 0.1).backward()
+    assert float(z.grad[0, 0]) < 0  # moves crop 0 toward its own view 0
+
+
+def test_hard_auc_by_visibility_bands() -> None:
+    """Each band ranks its own positives against its own hard negatives."""
+    visib = np.array([1.0, 1.0, 0.95, 0.7, 0.7, 0.7, 0.4, 0.4])
+    pos = np.array([1, 1, 0, 1, 0, 0, 1, 0], bool)
+    hard = ~pos
+    logit = np.array([0.1, 0.5, 0.9, 0.2, 0.1, 0.3, 0.5, 0.4])
+    rows = {tuple(r["visib"]): r for r in hard_auc_by_visibility(logit, pos, hard, visib)}
+    assert set(rows) == {(0.9, 1.0), (0.6, 0.9), (0.3, 0.6)}
+    assert rows[(0.9, 1.0)]["auc"] == 1.0 and rows[(0.9, 1.0)]["n_pos"] == 2
+    assert rows[(0.6, 0.9)]["auc"] == 0.5 and rows[(0.6, 0.9)]["n_hard"] == 2
+    assert rows[(0.3, 0.6)]["auc"] == 0.0

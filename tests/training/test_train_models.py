@@ -32,7 +32,12 @@ def test_shapes_and_preprocess() -> None:
     emb = NormalizedEmbedder(build_encoder(TINY))(crops)
     assert torch.allclose(emb.norm(dim=1), torch.ones(5), atol=1e-5)
     enc = Encoder((8, 16), 3, 16, 16)
-    assert enc.config == {**TINY, "activation": "relu", "decoder_norm": "none"}
+    assert enc.config == {
+        **TINY,
+        "activation": "relu",
+        "decoder_norm": "none",
+        "decoder_channels": None,
+    }
 
 
 def test_classifier_twin_sharing() -> None:
@@ -56,10 +61,18 @@ def test_bad_configs() -> None:
         build_encoder({"kernel": 4})
     with pytest.raises(ConfigError, match="freeze_encoder"):
         CHLitModule({"encoder": TINY}, freeze_encoder=True)
+    with pytest.raises(ConfigError, match="freeze_candidate needs init_from_ae"):
+        CHLitModule({"encoder": TINY}, freeze_candidate=True)
+    with pytest.raises(ConfigError, match="extra_pairs needs freeze_candidate"):
+        CHLitModule({"encoder": TINY}, extra_pairs=4)
+    with pytest.raises(ConfigError, match=r"unknown pairs keys \['hard_share'\]"):
+        CHLitModule({"encoder": TINY}, extra_pairs_mix={"hard_share": 0.5})
     with pytest.raises(ConfigError, match="activation"):
         build_encoder({"activation": "gelu"})
     with pytest.raises(ConfigError, match="decoder_norm"):
         build_autoencoder({"decoder_norm": "layer"})
+    with pytest.raises(ConfigError, match="decoder_channels must be 2"):
+        build_autoencoder({**TINY, "decoder_channels": [8]})
 
 
 def test_activation_and_decoder_norm_options() -> None:
@@ -75,6 +88,19 @@ def test_activation_and_decoder_norm_options() -> None:
     assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in leaky.encoder.modules())
     assert sum(isinstance(m, torch.nn.BatchNorm2d) for m in leaky.decoder.modules()) == 2
     assert leaky(torch.rand(2, 3, 16, 16))[0].shape == (2, 3, 16, 16)
+
+
+def test_decoder_channels_set_the_decoder_widths_only() -> None:
+    """decoder_channels narrows the decoder (from the smallest resolution up); the encoder, which
+    is what gets exported, is the same network as with the mirrored decoder."""
+    narrow = build_autoencoder({**TINY, "decoder_channels": [6, 4]})
+    mirrored = build_autoencoder(TINY)
+    widths = [m.out_channels for m in narrow.decoder.modules() if hasattr(m, "out_channels")]
+    assert widths == [4, 4, 3]  # 6 -> 4 (8x8), 4 -> 4 (16x16), output conv to RGB
+    assert narrow.decoder.fc.out_features == 6 * 4 * 4
+    shapes = {k: v.shape for k, v in narrow.encoder.state_dict().items()}
+    assert shapes == {k: v.shape for k, v in mirrored.encoder.state_dict().items()}
+    assert narrow(torch.rand(2, 3, 16, 16))[0].shape == (2, 3, 16, 16)
 
 
 def test_ae_loss_goes_down_on_fixed_batch(pattern_images) -> None:
@@ -108,7 +134,9 @@ def test_ch_loss_goes_down_on_fixed_batch() -> None:
     cand = obs.clone()
     aligned = torch.tensor([1, 0] * (n // 2), dtype=torch.uint8)
     cand[aligned == 0] = torch.randint(0, 256, (n // 2, 16, 16, 3), generator=g, dtype=torch.uint8)
-    batch = {"obs_rgb": obs, "cand_rgb": cand, "aligned": aligned}
+    angle = torch.where(aligned == 1, 5.0, 90.0)
+    batch = {"obs_rgb": obs, "cand_rgb": cand, "aligned": aligned, "angle_deg": angle}
+    batch["visib_fract"] = torch.ones(n)
     lit = CHLitModule({"encoder": TINY, "head": {"hidden": [32, 16]}}, lr=3e-3)
     opt = torch.optim.Adam(lit.parameters(), lr=3e-3)
     losses = []
