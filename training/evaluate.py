@@ -37,7 +37,7 @@ from chpf.cli import atomic_write_text, run_main
 from chpf.errors import ConfigError
 from training.checkpoints import load_autoencoder, load_classifier
 from training.data import open_shards, shard_crop_size
-from training.lit import classifier_metrics, load_val_codebook, pair_subsets
+from training.lit import classifier_metrics, load_codebook_npz, pair_subsets
 from training.metrics import cosine_retrieval, retrieval_summary, roc_auc, symmetry_aware_angle
 from training.models import Preprocess
 
@@ -129,13 +129,18 @@ def evaluate_ae(
 VISIBILITY_BANDS = ((0.9, 1.0), (0.6, 0.9), (0.3, 0.6), (0.0, 0.3))
 
 
+def visibility_band(visib: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """Mask (N,) of visible fractions ``visib`` (N,) in [lo, hi), closed at hi = 1."""
+    return (visib >= lo) & ((visib < hi) | (hi >= 1.0))
+
+
 def by_visibility(err_deg: np.ndarray, visib: np.ndarray) -> list[dict[str, Any]]:
     """Retrieval summaries of the errors ``err_deg`` (N,) degrees per band of the visible
     fraction ``visib`` (N,): bands [lo, hi), the top one closed, empty crops (visib 0) in none;
     with the crop count and the share (%) turned more than 150 degrees (front/back look-alikes)."""
     rows = []
     for lo, hi in VISIBILITY_BANDS:
-        m = (visib >= lo) & ((visib < hi) | (hi >= 1.0)) & (visib > 0)
+        m = visibility_band(visib, lo, hi) & (visib > 0)
         above150 = float(100.0 * np.mean(err_deg[m] > 150)) if m.any() else float("nan")
         rows.append(
             {
@@ -153,10 +158,10 @@ def hard_auc_by_visibility(
 ) -> list[dict[str, Any]]:
     """ROC AUC of the misalignment ``logit`` (N,) on the positives against the hard negatives
     (boolean masks, N) of each visibility band of ``VISIBILITY_BANDS`` but the lowest (a pair
-    counts in the band of its own ``visib``; bands as in ``by_visibility``)."""
+    counts in the band of its own ``visib``, ``visibility_band``)."""
     rows = []
     for lo, hi in VISIBILITY_BANDS[:-1]:
-        band = (visib >= lo) & ((visib < hi) | (hi >= 1.0))
+        band = visibility_band(visib, lo, hi)
         p, h = pos & band, hard & band
         sel = p | h
         auc = roc_auc(logit[sel], h[sel].astype(np.int64)) if p.any() and h.any() else float("nan")
@@ -306,7 +311,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     if a.data:
         if a.codebook:
-            cb = load_val_codebook(a.codebook)
+            cb = load_codebook_npz(a.codebook)
             cb.setdefault("symmetries_discrete", np.zeros((0, 4, 4)))
             cb.setdefault("symmetries_continuous_axes", np.zeros((0, 3)))
         else:

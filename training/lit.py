@@ -224,12 +224,12 @@ class _ChpfModule(pl.LightningModule):
         batch: int = 256,
     ) -> np.ndarray:
         """``fn`` (images ``(B, 3, S, S)`` -> embeddings ``(B, E)``) over uint8 crops
-        ``(N, S, S, 3)`` in batches, in eval mode -> float32 ``(N, E)``."""
+        ``(N, S, S, 3)`` in batches, in eval mode -> float32 ``(N, E)`` (also for N = 0)."""
         crops = torch.as_tensor(np.asarray(crops_u8))
         was_training = self.model.training
         self.model.eval()
         out = []
-        for i in range(0, crops.shape[0], batch):
+        for i in range(0, max(crops.shape[0], 1), batch):  # N = 0: one empty batch
             x = self._images({"x": crops[i : i + batch].to(self.device)}, "x")
             out.append(fn(x).float().cpu())
         self.model.train(was_training)
@@ -265,12 +265,12 @@ def _plain(obj: Any) -> Any:
 # ----------------------------------------------------------------------------- validation codebook
 
 
-def load_val_codebook(path: str | os.PathLike, size: int | None = None) -> dict[str, np.ndarray]:
+def load_codebook_npz(path: str | os.PathLike, size: int | None = None) -> dict[str, np.ndarray]:
     """Arrays of a codebook npz (see ``training.codebook``); DatasetError if bad, ConfigError
     if its crops are not ``size`` pixels (when given)."""
     path = Path(path)
     if not path.is_file():
-        raise DatasetError(f"{path}: validation codebook not found")
+        raise DatasetError(f"{path}: codebook not found")
     try:
         with np.load(path, allow_pickle=False) as z:
             cb = {k: z[k] for k in z.files}
@@ -370,7 +370,7 @@ class AELitModule(_ChpfModule):
     def setup(self, stage: str) -> None:
         super().setup(stage)
         if self.hparams.val_codebook and self._val_cb is None:
-            cb = load_val_codebook(self.hparams.val_codebook, self._model_size())
+            cb = load_codebook_npz(self.hparams.val_codebook, self._model_size())
             self._val_cb = cb
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -680,7 +680,7 @@ class CHLitModule(_ChpfModule):
         candidate branch, and seed the draws from the run's seed and the rank."""
         if not self.hparams.extra_pairs:
             return
-        cb = load_val_codebook(self.hparams.candidate_codebook, self._model_size())
+        cb = load_codebook_npz(self.hparams.candidate_codebook, self._model_size())
         emb = torch.from_numpy(self.embed_crops(self.model.embed_cand, cb["crops"]))
         manifest = self.trainer.datamodule.manifest
         data_cfg = manifest.get("config", {})

@@ -216,3 +216,11 @@ def test_hard_auc_by_visibility_bands() -> None:
     assert rows[(0.9, 1.0)]["auc"] == 1.0 and rows[(0.9, 1.0)]["n_pos"] == 2
     assert rows[(0.6, 0.9)]["auc"] == 0.5 and rows[(0.6, 0.9)]["n_hard"] == 2
     assert rows[(0.3, 0.6)]["auc"] == 0.0
+
+
+def test_embed_of_no_crops_is_an_empty_matrix() -> None:
+    """An empty crop array gives (0, E) embeddings, not an error."""
+    from training.lit import AELitModule
+
+    m = AELitModule({"channels": [8, 16], "size": 16, "embedding_dim": 16})
+    assert m.embed(np.zeros((0, 16, 16, 3), np.uint8)).shape == (0, 16)
