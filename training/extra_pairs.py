@@ -1,13 +1,15 @@
-"""Extra classifier pairs per observed crop, against a codebook of frozen candidate embeddings.
+"""Extra classifier pairs per observed crop, against a codebook of candidate embeddings.
 
-When the classifier's candidate branch is the autoencoder's frozen encoder
-(``CHLitModule(freeze_candidate=True)``), the embedding of every candidate view can be computed
-once. Each observed crop of a batch then meets ``m`` more hypotheses besides its own pair, drawn
-exactly as ``chpf-gen-data pairs`` draws them (``data_gen.rotations.draw_candidates`` with the
-data's ``pairs`` config: positives near the true orientation, hard negatives 20-45 deg away,
-flips, random ones), for the cost of the head alone: the observed crop's encoder pass, the
-expensive part of a step, is shared by all of them. Crops without the object get negatives
-only. The batch's own candidates are looked up too (no encoder pass for them).
+The embedding of every candidate view of a rotation grid is computed ahead of the step: once,
+when the classifier's candidate branch is the autoencoder's frozen encoder
+(``CHLitModule(freeze_candidate=True)``), or every ``candidate_refresh_steps`` steps when the
+branch trains (shared weights with the observed branch). Each observed crop of a batch then
+meets ``m`` more hypotheses besides its own pair, drawn exactly as ``chpf-gen-data pairs``
+draws them (``data_gen.rotations.draw_candidates`` with the data's ``pairs`` config: positives
+near the true orientation, hard negatives 20-45 deg away, flips, random ones), for the cost of
+the head alone: the observed crop's encoder pass, the expensive part of a step, is shared by all
+of them. Crops without the object get negatives only. With a frozen branch the batch's own
+candidates are looked up too (no encoder pass for them).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from data_gen.rotations import draw_candidates, symmetry_set
 
 
 class CandidateCodebook:
-    """Frozen candidate embeddings of a rotation grid and draws of extra hypotheses.
+    """Candidate embeddings of a rotation grid and draws of extra hypotheses.
 
     Args:
         rotations: (K,3,3) allocentric orientations of the codebook views.

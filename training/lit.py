@@ -500,9 +500,12 @@ class CHLitModule(_ChpfModule):
             (occlusion must not count against a pose), 1 = plain BCE.
         hard_neg_weight: BCE weight of negatives whose angle is in ``hard_negative_deg``.
         extra_pairs: hypotheses per observed crop besides its own pair (0 = off), drawn like
-            the data's candidates and scored against the frozen candidate embeddings of
+            the data's candidates and scored against the candidate embeddings of
             ``candidate_codebook`` (``training.extra_pairs``): many pairs per encoder pass.
-            Needs ``freeze_candidate``.
+            Needs ``freeze_candidate`` (exact embeddings) or ``candidate_refresh_steps``.
+        candidate_refresh_steps: with a trained candidate branch, the codebook's candidate
+            embeddings for the extra pairs are recomputed every this many steps (so they lag
+            the branch by at most that many); the batch's own pairs go through the branch.
         candidate_codebook: npz of ``python -m training.codebook`` (grid rotations and clean
             crops of the object) for ``extra_pairs``.
         extra_pairs_mix: keys of the chpf-gen-data ``pairs`` config that the extra pairs draw
@@ -531,6 +534,7 @@ class CHLitModule(_ChpfModule):
         extra_pairs: int = 0,
         candidate_codebook: str | None = None,
         extra_pairs_mix: dict[str, Any] | None = None,
+        candidate_refresh_steps: int = 0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -538,8 +542,19 @@ class CHLitModule(_ChpfModule):
             raise ConfigError("occluded_pos_weight and hard_neg_weight must be > 0")
         if extra_pairs < 0:
             raise ConfigError(f"extra_pairs must be >= 0, got {extra_pairs}")
-        if extra_pairs and not (freeze_candidate and candidate_codebook):
-            raise ConfigError("extra_pairs needs freeze_candidate and a candidate_codebook")
+        if candidate_refresh_steps < 0:
+            raise ConfigError(
+                f"candidate_refresh_steps must be >= 0, got {candidate_refresh_steps}"
+            )
+        if candidate_refresh_steps and (freeze_candidate or freeze_encoder):
+            raise ConfigError("candidate_refresh_steps is for a trained candidate branch")
+        if extra_pairs and not (
+            (freeze_candidate or candidate_refresh_steps) and candidate_codebook
+        ):
+            raise ConfigError(
+                "extra_pairs needs a candidate_codebook and freeze_candidate or "
+                "candidate_refresh_steps"
+            )
         unknown = set(extra_pairs_mix or {}) - set(default_config()["pairs"])
         if unknown:
             raise ConfigError(f"extra_pairs_mix: unknown pairs keys {sorted(unknown)}")
@@ -560,6 +575,7 @@ class CHLitModule(_ChpfModule):
             cfg["share_twin"] = False
         self.model = CHClassifier(cfg)
         self._candidates: CandidateCodebook | None = None
+        self._candidate_crops: np.ndarray | None = None
         self._pair_rng = np.random.default_rng(0)
         frozen = self._frozen_branch()
         if frozen is not None:
@@ -631,7 +647,8 @@ class CHLitModule(_ChpfModule):
         if train:
             obs = jitter_colors(obs, float(self.hparams.input_jitter))
         y = 1.0 - batch["aligned"].float()
-        if train and self._candidates is not None:  # the frozen candidate views are known
+        if train and self._candidates is not None and self.hparams.freeze_candidate:
+            # the frozen candidate views' embeddings are known exactly
             obs_n = self.model.embed_obs(obs)
             cand_n = self._candidates.embed(batch["cand_R_allo"].cpu().numpy()).to(obs_n)
         else:
@@ -676,11 +693,12 @@ class CHLitModule(_ChpfModule):
         return weight / weight.mean()
 
     def on_train_start(self) -> None:
-        """With ``extra_pairs``: embed the candidate codebook with the (restored) frozen
+        """With ``extra_pairs``: embed the candidate codebook with the (restored)
         candidate branch, and seed the draws from the run's seed and the rank."""
         if not self.hparams.extra_pairs:
             return
         cb = load_codebook_npz(self.hparams.candidate_codebook, self._model_size())
+        self._candidate_crops = cb["crops"]
         emb = torch.from_numpy(self.embed_crops(self.model.embed_cand, cb["crops"]))
         manifest = self.trainer.datamodule.manifest
         data_cfg = manifest.get("config", {})
@@ -698,6 +716,15 @@ class CHLitModule(_ChpfModule):
         info = manifest.get("object_info")
         self._candidates = CandidateCodebook(cb["rotations"], emb, pairs_cfg, info)
         self._pair_rng = np.random.default_rng([torch.initial_seed(), self.global_rank])
+
+    def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
+        """Re-embed the candidate codebook every ``candidate_refresh_steps`` steps."""
+        every = int(self.hparams.get("candidate_refresh_steps", 0))
+        step = self.global_step
+        if self._candidates is None or not every or step == 0 or step % every:
+            return
+        emb = self.embed_crops(self.model.embed_cand, self._candidate_crops)
+        self._candidates.embeddings = torch.from_numpy(emb)
 
     def training_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         loss, logit, y = self._step(batch, train=True)

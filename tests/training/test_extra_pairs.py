@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import lightning.pytorch as pl
 import numpy as np
 import pytest
 import torch
@@ -15,7 +16,9 @@ from data_gen.rotations import grid_spacing_deg
 from training.checkpoints import load_autoencoder, load_classifier
 from training.cli import main
 from training.codebook import codebook_arrays, save_codebook
+from training.data import PairDataModule
 from training.extra_pairs import CandidateCodebook
+from training.lit import CHLitModule
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -82,3 +85,42 @@ def test_extra_pairs_train_the_observed_branch_only(
     bad = [*args[:-1], str(tmp_path / "cb8.npz"), "--trainer.default_root_dir", str(tmp_path / "b")]
     with pytest.raises(ConfigError, match=r"cb8\.npz: codebook crop size 8 differs"):
         main(bad)
+
+
+def test_refreshed_candidates_follow_the_trained_branch(
+    pairs_dir: Path, tmp_path: Path, pattern_images
+) -> None:
+    """With a trained (shared) candidate branch the extra pairs' candidate embeddings are
+    recomputed every candidate_refresh_steps steps: after training they are the codebook
+    views' embeddings by the branch as it was at the last refresh."""
+    imgs, R = pattern_images(64, 16, seed=5)
+    save_codebook(tmp_path / "cb.npz", codebook_arrays(R, imgs))
+    lit = CHLitModule(
+        {"encoder": {"channels": [8, 16], "kernel": 3, "embedding_dim": 16, "size": 16}},
+        lr=3e-3,
+        warmup_steps=0,
+        extra_pairs=4,
+        candidate_codebook=str(tmp_path / "cb.npz"),
+        candidate_refresh_steps=3,
+    )
+    seen: dict[int, np.ndarray] = {}
+
+    class BranchSnapshots(pl.Callback):  # runs before the module's own hook
+        def on_train_batch_start(self, trainer, module, batch, batch_idx) -> None:
+            seen[trainer.global_step] = module.embed_crops(module.model.embed_cand, imgs)
+
+    trainer = pl.Trainer(
+        max_steps=5,
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        limit_val_batches=0,
+        callbacks=[BranchSnapshots()],
+    )
+    trainer.fit(lit, datamodule=PairDataModule(str(pairs_dir), batch_size=8))
+    table = lit._candidates.embeddings.numpy()
+    assert not np.allclose(seen[0], seen[3], atol=1e-4)  # the branch trained
+    np.testing.assert_allclose(table, seen[3], atol=1e-6)  # refreshed at step 3, not at 4
+    assert not np.allclose(table, seen[4], atol=1e-6)

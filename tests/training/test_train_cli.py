@@ -183,4 +183,8 @@ def test_shipped_configs_build_their_modules(
         model["candidate_codebook"] = str(tmp_path / "cb.npz")  # read when training starts
     module = CHLitModule(**model)
     frozen = module._frozen_branch()
-    assert frozen is not None and not any(p.requires_grad for p in frozen.parameters())
+    if model.get("freeze_encoder") or model.get("freeze_candidate"):
+        assert frozen is not None and not any(p.requires_grad for p in frozen.parameters())
+    else:  # the default: one trained encoder serves both branches
+        assert frozen is None and module.model.obs_encoder is module.model.cand_encoder
+        assert all(p.requires_grad for p in module.model.parameters())

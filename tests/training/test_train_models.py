@@ -63,8 +63,10 @@ def test_bad_configs() -> None:
         CHLitModule({"encoder": TINY}, freeze_encoder=True)
     with pytest.raises(ConfigError, match="freeze_candidate needs init_from_ae"):
         CHLitModule({"encoder": TINY}, freeze_candidate=True)
-    with pytest.raises(ConfigError, match="extra_pairs needs freeze_candidate"):
+    with pytest.raises(ConfigError, match="extra_pairs needs a candidate_codebook"):
         CHLitModule({"encoder": TINY}, extra_pairs=4)
+    with pytest.raises(ConfigError, match="candidate_refresh_steps is for a trained"):
+        CHLitModule({"encoder": TINY}, candidate_refresh_steps=10, freeze_encoder=True)
     with pytest.raises(ConfigError, match=r"unknown pairs keys \['hard_share'\]"):
         CHLitModule({"encoder": TINY}, extra_pairs_mix={"hard_share": 0.5})
     with pytest.raises(ConfigError, match="activation"):
