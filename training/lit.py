@@ -576,6 +576,7 @@ class CHLitModule(_ChpfModule):
         self.model = CHClassifier(cfg)
         self._candidates: CandidateCodebook | None = None
         self._candidate_crops: np.ndarray | None = None
+        self._candidates_embedded_at = -1  # global step of the last codebook embedding
         self._pair_rng = np.random.default_rng(0)
         frozen = self._frozen_branch()
         if frozen is not None:
@@ -699,7 +700,7 @@ class CHLitModule(_ChpfModule):
             return
         cb = load_codebook_npz(self.hparams.candidate_codebook, self._model_size())
         self._candidate_crops = cb["crops"]
-        emb = torch.from_numpy(self.embed_crops(self.model.embed_cand, cb["crops"]))
+        emb = self._embed_candidate_views()
         manifest = self.trainer.datamodule.manifest
         data_cfg = manifest.get("config", {})
         k_data = data_cfg.get("codebook", {}).get("size")
@@ -717,14 +718,20 @@ class CHLitModule(_ChpfModule):
         self._candidates = CandidateCodebook(cb["rotations"], emb, pairs_cfg, info)
         self._pair_rng = np.random.default_rng([torch.initial_seed(), self.global_rank])
 
+    def _embed_candidate_views(self) -> torch.Tensor:
+        """Candidate-branch embeddings (K, E) of the candidate codebook's clean views, now."""
+        self._candidates_embedded_at = self.global_step
+        return torch.from_numpy(self.embed_crops(self.model.embed_cand, self._candidate_crops))
+
     def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
-        """Re-embed the candidate codebook every ``candidate_refresh_steps`` steps."""
+        """Re-embed the candidate codebook every ``candidate_refresh_steps`` steps (not again
+        at the step ``on_train_start`` embedded it, e.g. a resumed run's first)."""
         every = int(self.hparams.get("candidate_refresh_steps", 0))
         step = self.global_step
-        if self._candidates is None or not every or step == 0 or step % every:
+        due = every > 0 and step % every == 0 and step != self._candidates_embedded_at
+        if self._candidates is None or not due:
             return
-        emb = self.embed_crops(self.model.embed_cand, self._candidate_crops)
-        self._candidates.embeddings = torch.from_numpy(emb)
+        self._candidates.embeddings = self._embed_candidate_views()
 
     def training_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         loss, logit, y = self._step(batch, train=True)
