@@ -36,7 +36,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from chpf.cli import atomic_write_bytes, atomic_write_text
+from chpf.atomic import atomic_write_bytes, atomic_write_text
 from chpf.detections import read_detections, write_detections
 from chpf.errors import BopFormatError, DatasetError, ImageSizeError
 from chpf.results import ResultRow, ResultsAppender, read_results_csv, write_results_csv

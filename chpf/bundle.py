@@ -20,7 +20,6 @@ This module never imports torch.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +31,7 @@ import onnxruntime as ort
 from chpf.crops import CropSpec
 from chpf.errors import BundleError, ConfigError, ImageSizeError
 from chpf.geometry import RotationGrid
+from chpf.hashing import sha256_file
 
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
@@ -86,15 +86,6 @@ class ObjectInfo:
             ],
             "fingerprint": self.fingerprint,
         }
-
-
-def sha256_file(path: Path, chunk: int = 1 << 22) -> str:
-    """Hex sha256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(chunk):
-            h.update(block)
-    return h.hexdigest()
 
 
 def check_crop_size(size: int, where: str) -> None:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from chpf.cli import atomic_write_text
+from chpf.atomic import atomic_write_text
 from chpf.errors import BopFormatError, DatasetError
 
 if TYPE_CHECKING:

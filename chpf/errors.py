@@ -35,3 +35,7 @@ class ConfigError(ChpfError):
 
 class DatasetError(ChpfError):
     """A dataset or data folder is missing, incomplete, or made with another config."""
+
+
+class OutputError(ChpfError):
+    """An output folder cannot be written, is busy, or holds outputs of other settings."""

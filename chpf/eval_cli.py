@@ -37,8 +37,9 @@ from typing import Any
 
 import numpy as np
 
+from chpf.atomic import atomic_write_text
 from chpf.bop import BopDataset
-from chpf.cli import atomic_write_text, run_main, scene_list
+from chpf.console import run_main, scene_list
 from chpf.errors import DatasetError
 from chpf.results import ResultRow, read_results_csv
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from chpf.cli import atomic_write_text
+from chpf.atomic import atomic_write_text
 from chpf.errors import ResultsFormatError
 
 __all__ = ["HEADER", "ResultRow", "ResultsAppender", "read_results_csv", "write_results_csv"]

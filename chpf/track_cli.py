@@ -22,9 +22,10 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from chpf.atomic import atomic_write_text
 from chpf.bop import BopDataset, read_results_csv
 from chpf.bundle import Bundle
-from chpf.cli import atomic_write_text, run_main, scene_list
+from chpf.console import run_main, scene_list
 from chpf.errors import BundleError, ConfigError, DatasetError
 from chpf.tracking.boxes import make_box_source
 from chpf.tracking.config import METHODS, MODALITIES, PAPER_METHODS, make_config

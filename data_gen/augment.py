@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from chpf.cli import atomic_write_bytes
+from chpf.atomic import atomic_write_bytes
 from chpf.errors import ConfigError
 
 TEXTURE_VERSION = 1  # bump when the texture generator changes (invalidates cached banks)

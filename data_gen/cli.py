@@ -20,7 +20,7 @@ import sys
 import time
 from pathlib import Path
 
-from chpf.cli import run_main
+from chpf.console import run_main
 from chpf.errors import ConfigError
 from data_gen import config as C
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from chpf.cli import atomic_write_bytes
+from chpf.atomic import atomic_write_bytes
 from chpf.errors import DatasetError
 from data_gen.shards import MANIFEST, ShardDataset
 

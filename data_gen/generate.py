@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from chpf.atomic import atomic_save_npz
 from data_gen import config as C
 from data_gen import shards as sh
 from data_gen.compose import Composer, ComposerContext, ComposerSetup, build_pools
@@ -72,7 +73,7 @@ def _drain(tasks: list[tuple]) -> list[int]:
     while (j := _claim(_W["next"], len(tasks))) is not None:
         out_dir, seed, i, n = tasks[j]
         arrays = make_shard(_W["composer"], seed, i, n, _bump)
-        sh.save_npz(Path(out_dir) / sh.shard_name(i), arrays)
+        atomic_save_npz(Path(out_dir) / sh.shard_name(i), arrays)
         made.append(i)
     return made
 
@@ -176,7 +177,7 @@ def generate(
             composer = Composer(setup) if todo else None
             for i in todo:
                 arrays = make_shard(composer, seed, i, entries[i]["n"], bar.update)
-                sh.save_npz(out / entries[i]["file"], arrays)
+                atomic_save_npz(out / entries[i]["file"], arrays)
         else:
             # workers - 1 spawned processes and this one claim shards from a shared counter
             # (this process starts at once, while the others are still starting up)
@@ -195,7 +196,7 @@ def generate(
                 while (j := _claim(next_task, len(tasks))) is not None:
                     _, _, i, n = tasks[j]
                     arrays = make_shard(_W["composer"], seed, i, n, tick)
-                    sh.save_npz(out / entries[i]["file"], arrays)
+                    atomic_save_npz(out / entries[i]["file"], arrays)
                 for r in results:
                     while not r.ready():
                         r.wait(0.2)

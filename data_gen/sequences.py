@@ -33,7 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from chpf import bop
-from chpf.cli import atomic_write_bytes, atomic_write_text
+from chpf.atomic import atomic_write_bytes, atomic_write_text
 from chpf.detections import SimulatedDetector
 from chpf.errors import ConfigError, DatasetError
 from chpf.geometry import axis_angle_to_matrix, random_rotations

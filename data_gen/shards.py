@@ -7,7 +7,6 @@ was renamed into place only after it was fully written), which is what resume re
 
 from __future__ import annotations
 
-import io
 import json
 import zipfile
 from pathlib import Path
@@ -15,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from chpf.cli import atomic_write_bytes, atomic_write_text
+from chpf.atomic import atomic_write_text
 from chpf.errors import DatasetError
 
 FORMAT_VERSION = 1
@@ -72,24 +71,6 @@ def check_shard(kind: str, arrays: dict[str, np.ndarray], n: int, size: int) -> 
 
 
 # ----------------------------------------------------------------------------- npz I/O
-
-
-def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
-    """Uncompressed ``.npz`` bytes that depend only on the arrays (fixed timestamps, order)."""
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
-        for key, val in arrays.items():
-            info = zipfile.ZipInfo(key + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_STORED
-            info.external_attr = 0o644 << 16
-            with zf.open(info, "w", force_zip64=True) as f:
-                np.lib.format.write_array(f, np.ascontiguousarray(val), allow_pickle=False)
-    return buf.getvalue()
-
-
-def save_npz(path: str | Path, arrays: dict[str, np.ndarray]) -> None:
-    """Atomically write ``arrays`` as a deterministic uncompressed ``.npz``."""
-    atomic_write_bytes(path, npz_bytes(arrays))
 
 
 def load_npz(path: str | Path, mmap: bool = False) -> dict[str, np.ndarray]:

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from chpf.cli import run_main
+from chpf.console import run_main
 
 POSERBPF_ENCODER: dict[str, Any] = {
     "channels": [128, 256, 256, 512],

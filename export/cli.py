@@ -11,7 +11,7 @@ import argparse
 import time
 
 from chpf import __version__
-from chpf.cli import run_main
+from chpf.console import run_main
 
 
 def build_parser() -> argparse.ArgumentParser:

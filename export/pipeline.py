@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import os
 import warnings
 from collections.abc import Callable
@@ -16,16 +15,17 @@ import torch
 from torch import nn
 
 from chpf import __version__
+from chpf.atomic import npz_bytes
 from chpf.bundle import FORMAT_VERSION, ObjectInfo, check_crop_size
 from chpf.crops import CropSpec
 from chpf.errors import BundleError
+from chpf.hashing import sha256_file
 from chpf.objects import ObjectModel, get_object, object_fingerprint
 from export import onnx_export as ox
 from export.codebook import build_codebook, render_pool
 from export.config import ExportConfig
 from export.writer import (
     check_out,
-    npz_bytes,
     staging_dir,
     to_jsonable,
     write_files,
@@ -51,10 +51,6 @@ def same_weights(a: nn.Module, b: nn.Module) -> bool:
     return sa.keys() == sb.keys() and all(
         sa[k].shape == sb[k].shape and torch.equal(sa[k], sb[k]) for k in sa
     )
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 @dataclass
@@ -228,7 +224,7 @@ def export_bundle(
         fingerprint=object_fingerprint(model),
     )
     training = {
-        kind: {"checkpoint": p.name, "checkpoint_sha256": _sha256(p), **inf}
+        kind: {"checkpoint": p.name, "checkpoint_sha256": sha256_file(p), **inf}
         for kind, p, inf in (("ae", ae_path, ae_info), ("ch", ch_path, ch_info))
     }
     with staging_dir(out) as tmp:

@@ -8,8 +8,6 @@ folder that is not a bundle is never touched.
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import io
 import json
 import os
 import shutil
@@ -22,6 +20,7 @@ import numpy as np
 
 from chpf.bundle import MANIFEST
 from chpf.errors import BundleError
+from chpf.hashing import sha256_bytes
 
 
 def existing_bundle_object(out: Path) -> str | None:
@@ -57,13 +56,6 @@ def check_out(out: Path, object_name: str, overwrite: bool) -> None:
     )
 
 
-def npz_bytes(arrays: dict[str, np.ndarray], compressed: bool = True) -> bytes:
-    """The bytes of an ``.npz`` holding ``arrays``."""
-    buf = io.BytesIO()
-    (np.savez_compressed if compressed else np.savez)(buf, **arrays)
-    return buf.getvalue()
-
-
 @contextlib.contextmanager
 def staging_dir(out: Path) -> Iterator[Path]:
     """A fresh temp folder next to ``out``; removed on exit unless it was renamed away."""
@@ -87,7 +79,7 @@ def write_files(folder: Path, files: dict[str, bytes]) -> dict[str, str]:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        hashes[name] = hashlib.sha256(data).hexdigest()
+        hashes[name] = sha256_bytes(data)
     return hashes
 
 

@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from chpf.cli import run_main
+from chpf.console import run_main
 from chpf.errors import ConfigError
 from training.precision import auto_precision
 

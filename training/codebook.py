@@ -15,14 +15,14 @@ folder's crop spec, and writes an npz with:
 from __future__ import annotations
 
 import argparse
-import io
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from chpf.cli import atomic_write_bytes, run_main
+from chpf.atomic import atomic_save_npz
+from chpf.console import run_main
 from chpf.errors import DatasetError
 
 
@@ -83,9 +83,7 @@ def codebook_arrays(
 
 def save_codebook(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> None:
     """Atomic uncompressed npz write."""
-    buf = io.BytesIO()
-    np.savez(buf, **arrays)
-    atomic_write_bytes(path, buf.getvalue())
+    atomic_save_npz(path, arrays)
 
 
 def main(argv: list[str] | None = None) -> int:

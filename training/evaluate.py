@@ -33,7 +33,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from chpf.cli import atomic_write_text, run_main
+from chpf.atomic import atomic_write_text
+from chpf.console import run_main
 from chpf.errors import ConfigError
 from training.checkpoints import load_autoencoder, load_classifier
 from training.data import open_shards, shard_crop_size

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from chpf.cli import atomic_write_bytes
+from chpf.atomic import atomic_write_bytes
 from chpf.tracking.runlog import log_arrays, read_log
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from chpf.atomic import atomic_save_npz, npz_bytes
 from chpf.errors import DatasetError
 from data_gen import augment
 from data_gen.config import default_config
@@ -13,9 +14,7 @@ from data_gen.shards import (
     empty_shard,
     load_npz,
     make_manifest,
-    npz_bytes,
     prepare_output,
-    save_npz,
     shard_sizes,
 )
 
@@ -24,7 +23,7 @@ def test_npz_is_deterministic_and_memory_mappable(tmp_path):
     arrays = empty_shard("pairs", 5, 16)
     arrays["angle_deg"][:] = np.arange(5)
     assert npz_bytes(arrays) == npz_bytes({k: v.copy() for k, v in arrays.items()})
-    save_npz(tmp_path / "a.npz", arrays)
+    atomic_save_npz(tmp_path / "a.npz", arrays)
     for mmap in (False, True):
         back = load_npz(tmp_path / "a.npz", mmap=mmap)
         for k, v in arrays.items():
@@ -45,10 +44,10 @@ def test_dataset_checks_fields(tmp_path):
     )
     prepare_output(tmp_path, man, overwrite=False)
     a = empty_shard("ae", 4, 16)
-    save_npz(tmp_path / "shard_00000.npz", a)
+    atomic_save_npz(tmp_path / "shard_00000.npz", a)
     b = empty_shard("ae", 2, 16)
     b["visib_fract"] = b["visib_fract"].astype(np.float64)  # wrong dtype
-    save_npz(tmp_path / "shard_00001.npz", b)
+    atomic_save_npz(tmp_path / "shard_00001.npz", b)
     ds = ShardDataset(tmp_path)
     assert len(ds) == 6 and ds[3]["input_rgb"].shape == (16, 16, 3)
     with pytest.raises(DatasetError, match="visib_fract"):

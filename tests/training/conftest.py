@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from data_gen.shards import make_manifest, save_npz
+from chpf.atomic import atomic_save_npz
+from data_gen.shards import make_manifest
 
 
 def _rotations(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -70,7 +71,7 @@ def write_shards(
                 "angle_deg": angle.astype(np.float32),
                 "visib_fract": rng.uniform(0.2, 1.0, m).astype(np.float32),
             }
-        save_npz(out / entry["file"], arrays)
+        atomic_save_npz(out / entry["file"], arrays)
     return out
 
 

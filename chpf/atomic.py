@@ -1,0 +1,53 @@
+"""Atomic file writes: a temp file in the target's folder, then ``os.replace``, so that a
+reader (or a rerun after a crash) sees the old file or the new one, never half of one."""
+
+from __future__ import annotations
+
+import io
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temp file in the same folder and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Atomic UTF-8 text write (see ``atomic_write_bytes``)."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def npz_bytes(arrays: dict[str, np.ndarray], compressed: bool = False) -> bytes:
+    """``.npz`` bytes that depend only on the arrays (fixed timestamps, key order); members are
+    stored (memory-mappable) unless ``compressed``."""
+    method = zipfile.ZIP_DEFLATED if compressed else zipfile.ZIP_STORED
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=method, allowZip64=True) as zf:
+        for key, val in arrays.items():
+            info = zipfile.ZipInfo(key + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = method
+            info.external_attr = 0o644 << 16
+            with zf.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.ascontiguousarray(val), allow_pickle=False)
+    return buf.getvalue()
+
+
+def atomic_save_npz(
+    path: str | os.PathLike, arrays: dict[str, np.ndarray], compressed: bool = False
+) -> None:
+    """Atomically save ``arrays`` as an ``.npz`` file (see ``npz_bytes``)."""
+    atomic_write_bytes(path, npz_bytes(arrays, compressed))

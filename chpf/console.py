@@ -1,0 +1,38 @@
+"""What every console script shares: one-line errors with exit 2, and argument types."""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+from collections.abc import Callable
+
+from chpf.errors import ChpfError
+
+
+def run_main(main: Callable[[list[str] | None], int]) -> Callable[[], None]:
+    """Wrap ``main(argv) -> exit code`` for a console script: ChpfError -> one line, exit 2."""
+
+    @functools.wraps(main)
+    def cli() -> None:
+        try:
+            code = main(None)
+        except ChpfError as err:
+            print(f"error: {err}", file=sys.stderr)
+            sys.exit(2)
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr)
+            sys.exit(130)
+        sys.exit(code or 0)
+
+    return cli
+
+
+def scene_list(text: str) -> list[int]:
+    """argparse type of ``--scenes``: comma-separated scene ids ("48,49") -> [48, 49]."""
+    try:
+        return [int(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated scene ids, got {text!r}"
+        ) from None

@@ -1,0 +1,103 @@
+"""Output folders of the chpf commands: one writer at a time, and outputs of one setting only.
+
+``lock_output_dir(folder, command)`` takes an exclusive ``flock`` on ``FOLDER/.chpf.lock`` for as
+long as a command writes there: a second writer (chpf-track, chpf-gen-data, chpf-export,
+chpf-eval --json) on the same folder refuses in one line instead of interleaving its rows. The
+lock dies with the process, so a killed run leaves nothing to clean up.
+
+``claim_settings(folder, name, settings, overwrite)`` records the settings a command's outputs
+were made with (``FOLDER/NAME``, JSON) and refuses a rerun with other settings unless
+``overwrite``, so that a resumed folder never mixes two runs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from chpf.atomic import atomic_write_text
+from chpf.errors import OutputError
+
+LOCK_NAME = ".chpf.lock"
+
+
+def make_output_dir(folder: str | os.PathLike) -> Path:
+    """Create ``folder`` (and parents); OutputError naming it when that is impossible."""
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except (OSError, ValueError) as err:
+        raise OutputError(f"{folder}: cannot create the output folder ({err})") from None
+    if not folder.is_dir():
+        raise OutputError(f"{folder}: exists and is not a folder")
+    return folder
+
+
+@contextlib.contextmanager
+def lock_output_dir(folder: str | os.PathLike, command: str) -> Iterator[Path]:
+    """Hold the write lock of ``folder`` (created if needed) while the block runs.
+
+    OutputError in one line when another process holds it (its command and pid are named).
+    """
+    folder = make_output_dir(folder)
+    path = folder / LOCK_NAME
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as err:
+        raise OutputError(f"{path}: cannot open the lock file ({err})") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 200, 0).decode("utf-8", errors="replace").strip()
+            raise OutputError(
+                f"{folder}: another command is writing here ({holder or 'unknown'}); "
+                "wait for it to finish or choose another output folder"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{command}, pid {os.getpid()}\n".encode(), 0)
+        yield folder
+    finally:
+        os.close(fd)  # closing the descriptor releases the lock
+
+
+def claim_settings(
+    folder: str | os.PathLike, name: str, settings: dict[str, Any], overwrite: bool
+) -> dict[str, Any] | None:
+    """Record ``settings`` as ``FOLDER/NAME`` unless the same are recorded already.
+
+    Returns the settings recorded before when they differed and ``overwrite`` allowed replacing
+    them (the caller then removes the outputs they describe), else None. Raises OutputError when
+    they differ (or the folder holds other files and no record) and ``overwrite`` is False.
+    """
+    folder = Path(folder)
+    path = folder / name
+    settings = json.loads(json.dumps(settings))  # as it reads back (tuples -> lists)
+    old: dict[str, Any] | None = None
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as err:
+            if not overwrite:
+                raise OutputError(f"{path}: unreadable settings record ({err})") from None
+            old = {}
+        if old == settings:
+            return None
+        if not overwrite:
+            keys = settings.keys() | old.keys()
+            changed = sorted(k for k in keys if old.get(k) != settings.get(k))
+            raise OutputError(
+                f"{folder}: holds outputs made with other settings ({', '.join(changed)} differ, "
+                f"see {name}); use --overwrite to replace them or choose another folder"
+            )
+    elif not overwrite and any(p.name != LOCK_NAME for p in folder.iterdir()):
+        raise OutputError(
+            f"{folder}: folder is not empty and has no {name}; use --overwrite or another folder"
+        )
+    atomic_write_text(path, json.dumps(settings, indent=1, sort_keys=True) + "\n")
+    return old
