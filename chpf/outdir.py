@@ -1,7 +1,8 @@
 """Output folders of the chpf commands: one writer at a time, and outputs of one setting only.
 
 ``lock_output_dir(folder, command)`` takes an exclusive ``flock`` on ``FOLDER/.chpf.lock`` for as
-long as a command writes there: a second writer (chpf-track, chpf-gen-data, chpf-export,
+long as a command writes there (``lock_output_path`` beside a file or folder that is replaced
+as a whole): a second writer (chpf-track, chpf-gen-data, chpf-export,
 chpf-eval --json) on the same folder refuses in one line instead of interleaving its rows. The
 lock dies with the process, so a killed run leaves nothing to clean up.
 
@@ -39,13 +40,8 @@ def make_output_dir(folder: str | os.PathLike) -> Path:
 
 
 @contextlib.contextmanager
-def lock_output_dir(folder: str | os.PathLike, command: str) -> Iterator[Path]:
-    """Hold the write lock of ``folder`` (created if needed) while the block runs.
-
-    OutputError in one line when another process holds it (its command and pid are named).
-    """
-    folder = make_output_dir(folder)
-    path = folder / LOCK_NAME
+def _hold_lock(path: Path, what: Path, command: str) -> Iterator[None]:
+    """Hold an exclusive flock on ``path`` for ``what``; OutputError when another holds it."""
     try:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     except OSError as err:
@@ -56,38 +52,58 @@ def lock_output_dir(folder: str | os.PathLike, command: str) -> Iterator[Path]:
         except BlockingIOError:
             holder = os.pread(fd, 200, 0).decode("utf-8", errors="replace").strip()
             raise OutputError(
-                f"{folder}: another command is writing here ({holder or 'unknown'}); "
-                "wait for it to finish or choose another output folder"
+                f"{what}: another command is writing here ({holder or 'unknown'}); "
+                "wait for it to finish or choose another output"
             ) from None
         os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{command}, pid {os.getpid()}\n".encode(), 0)
-        yield folder
+        os.pwrite(fd, f"{command}, pid {os.getpid()}".encode(), 0)
+        yield
     finally:
         os.close(fd)  # closing the descriptor releases the lock
 
 
+@contextlib.contextmanager
+def lock_output_dir(folder: str | os.PathLike, command: str) -> Iterator[Path]:
+    """Hold the write lock of a folder written in place (``FOLDER/.chpf.lock``; the folder is
+    created if needed) while the block runs; yields the folder."""
+    folder = make_output_dir(folder)
+    with _hold_lock(folder / LOCK_NAME, folder, command):
+        yield folder
+
+
+@contextlib.contextmanager
+def lock_output_path(path: str | os.PathLike, command: str) -> Iterator[Path]:
+    """Hold the write lock of a file or folder that is replaced as a whole (a bundle folder, a
+    JSON report): the lock file ``.NAME.chpf.lock`` sits beside it; yields the path."""
+    path = Path(path)
+    make_output_dir(path.parent)
+    with _hold_lock(path.parent / f".{path.name}{LOCK_NAME}", path, command):
+        yield path
+
+
 def claim_settings(
     folder: str | os.PathLike, name: str, settings: dict[str, Any], overwrite: bool
-) -> dict[str, Any] | None:
+) -> bool:
     """Record ``settings`` as ``FOLDER/NAME`` unless the same are recorded already.
 
-    Returns the settings recorded before when they differed and ``overwrite`` allowed replacing
-    them (the caller then removes the outputs they describe), else None. Raises OutputError when
-    they differ (or the folder holds other files and no record) and ``overwrite`` is False.
+    Returns True when the folder's earlier outputs are stale (made with other or unrecorded
+    settings, replaced as ``overwrite`` allows): the caller then removes them. Raises
+    OutputError when they are stale and ``overwrite`` is False.
     """
     folder = Path(folder)
     path = folder / name
     settings = json.loads(json.dumps(settings))  # as it reads back (tuples -> lists)
-    old: dict[str, Any] | None = None
     if path.is_file():
         try:
             old = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, ValueError) as err:
+            old = f"unreadable ({err})"
+        if not isinstance(old, dict):
             if not overwrite:
-                raise OutputError(f"{path}: unreadable settings record ({err})") from None
+                raise OutputError(f"{path}: not a settings record ({old}); use --overwrite")
             old = {}
         if old == settings:
-            return None
+            return False
         if not overwrite:
             keys = settings.keys() | old.keys()
             changed = sorted(k for k in keys if old.get(k) != settings.get(k))
@@ -95,9 +111,13 @@ def claim_settings(
                 f"{folder}: holds outputs made with other settings ({', '.join(changed)} differ, "
                 f"see {name}); use --overwrite to replace them or choose another folder"
             )
-    elif not overwrite and any(p.name != LOCK_NAME for p in folder.iterdir()):
-        raise OutputError(
-            f"{folder}: folder is not empty and has no {name}; use --overwrite or another folder"
-        )
+        stale = True
+    else:
+        stale = any(p.name != LOCK_NAME for p in folder.iterdir())
+        if stale and not overwrite:
+            raise OutputError(
+                f"{folder}: folder is not empty and has no {name}; use --overwrite or another "
+                "folder"
+            )
     atomic_write_text(path, json.dumps(settings, indent=1, sort_keys=True) + "\n")
-    return old
+    return stale

@@ -27,9 +27,11 @@ from chpf.bop import BopDataset, read_results_csv
 from chpf.bundle import Bundle
 from chpf.console import run_main, scene_list
 from chpf.errors import BundleError, ConfigError, DatasetError
+from chpf.outdir import claim_settings, lock_output_dir
 from chpf.tracking.boxes import make_box_source
 from chpf.tracking.config import METHODS, MODALITIES, PAPER_METHODS, make_config
-from chpf.tracking.run_dataset import MethodRun, output_paths, run_dataset
+from chpf.tracking.run_dataset import MethodRun, run_dataset
+from chpf.tracking.run_record import SETTINGS_FILE, clear_outputs, track_settings
 from chpf.tracking.runlog import NETWORK_STAGES
 from chpf.tracking.tracker import Tracker
 
@@ -72,6 +74,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", type=Path, default=None, help="output folder (default: chpf_track_out)")
     p.add_argument("--config", type=Path, default=None, help="tracking options YAML")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the outputs in --out made with other settings (default: refuse)",
+    )
     p.add_argument("--n-particles", type=int, default=None, help="particles (default 50)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--frames", type=int, default=None, help="--demo: frames to generate")
@@ -124,8 +131,13 @@ def stage_table(runs: dict[str, MethodRun]) -> str:
     return "\n".join(lines)
 
 
-def track(args: argparse.Namespace, methods: list[str], dataset: Path, bundle: Bundle) -> int:
-    """Run the methods on the dataset and report (shared by --dataset and --demo)."""
+def track(
+    args: argparse.Namespace, methods: list[str], dataset: Path, bundle: Bundle, fresh: bool = False
+) -> int:
+    """Run the methods on the dataset and report (shared by --dataset and --demo).
+
+    ``--out`` is locked while the run writes; its recorded settings must match this run's (see
+    chpf.tracking.run_record) unless ``--overwrite``; ``fresh`` clears its outputs first."""
     ds = BopDataset(dataset)
     scenes = ds.scene_ids(args.split)
     if args.scenes is not None:
@@ -155,39 +167,55 @@ def track(args: argparse.Namespace, methods: list[str], dataset: Path, bundle: B
         except Exception as err:  # no mesh: track anyway, without per-frame errors
             print(f"note: no per-frame errors ({err})")
     out = args.out or Path("chpf_track_out")
-    print(
-        f"tracking obj_id {obj_id} ({bundle.obj_info.name}) in {len(scenes)} scene(s) with "
-        f"{', '.join(methods)} [{args.modality}, N={cfg.n_particles}] -> {out}",
-        flush=True,
-    )
-    runs = run_dataset(
-        trackers,
-        ds,
-        args.split,
-        scenes,
-        obj_id,
-        boxes,
-        out,
-        args.seed,
-        points,
-        progress=not args.no_progress,
-    )
-    print(stage_table(runs))
-    summary = {
-        m: {"results": str(r.results), "log": str(r.log), "fps": r.fps} for m, r in runs.items()
-    }
-    if has_gt:
-        table = auc_table(dataset, runs, args.split, scenes)
-        print(table)
-        atomic_write_text(out / "auc_table.txt", table + "\n")
-    if not args.no_plot:
-        from chpf.tracking.plots import plot_scenes
+    with lock_output_dir(out, "chpf-track"):
+        settings = track_settings(
+            bundle,
+            dataset,
+            args.split,
+            scenes,
+            args.detections,
+            methods,
+            args.modality,
+            args.seed,
+            cfg,
+        )
+        if claim_settings(out, SETTINGS_FILE, settings, args.overwrite or fresh) or fresh:
+            clear_outputs(out)
+        print(
+            f"tracking obj_id {obj_id} ({bundle.obj_info.name}) in {len(scenes)} scene(s) with "
+            f"{', '.join(methods)} [{args.modality}, N={cfg.n_particles}] -> {out}",
+            flush=True,
+        )
+        runs = run_dataset(
+            trackers,
+            ds,
+            args.split,
+            scenes,
+            obj_id,
+            boxes,
+            out,
+            args.seed,
+            points,
+            progress=not args.no_progress,
+        )
+        print(stage_table(runs))
+        summary = {
+            m: {"results": str(r.results), "log": str(r.log), "fps": r.fps} for m, r in runs.items()
+        }
+        if has_gt:
+            table = auc_table(dataset, runs, args.split, scenes)
+            print(table)
+            atomic_write_text(out / "auc_table.txt", table + "\n")
+        if not args.no_plot:
+            from chpf.tracking.plots import plot_scenes
 
-        pngs = plot_scenes({m: r.log for m, r in runs.items()}, out / "plots", bundle.obj_info.name)
-        for p in pngs:
-            print(f"plot: {p}")
-    atomic_write_text(out / "runs.json", json.dumps(summary, indent=1) + "\n")
-    return 0
+            pngs = plot_scenes(
+                {m: r.log for m, r in runs.items()}, out / "plots", bundle.obj_info.name
+            )
+            for p in pngs:
+                print(f"plot: {p}")
+        atomic_write_text(out / "runs.json", json.dumps(summary, indent=1) + "\n")
+        return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -204,10 +232,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.split = "test"
         args.out = args.out or Path("chpf_demo")
         methods = list(DEMO_METHODS) if args.method == "chpf" else parse_methods(args.method)
-        for m in methods:  # the demo starts afresh (no resume)
-            for p in output_paths(args.out, m, dataset.resolve().name, "test"):
-                p.unlink(missing_ok=True)
-        return track(args, methods, dataset, bundle)
+        return track(args, methods, dataset, bundle, fresh=True)  # the demo starts afresh
     if args.bundle is None or args.dataset is None:
         raise ConfigError("chpf-track needs --bundle and --dataset (or --demo)")
     methods = parse_methods(args.method)

@@ -183,3 +183,80 @@ def test_demo_runs_chpf_and_two_baselines(template_bundle, tmp_path, capsys, mon
         assert m in table
     assert (out / "plots" / "scene_000001.png").is_file()
     assert set(COLUMNS) <= set((out / "log_chpf.csv").read_text().splitlines()[0].split(","))
+
+
+def _cli_error(capsys, monkeypatch, *argv) -> str:
+    """Run the console script; assert exit 2 with one stderr line; return that line."""
+    import sys
+
+    monkeypatch.setattr(sys, "argv", ["chpf-track", *(str(a) for a in argv)])
+    with pytest.raises(SystemExit) as exc:
+        cli()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and err[0].startswith("error: "), err
+    return err[0]
+
+
+def test_rerun_with_other_settings_is_refused_unless_overwrite(
+    template_bundle, dataset, tmp_path, capsys, monkeypatch
+):
+    """8 frames with seed 0 / N = 50, then seed 1 / N = 20 into the same --out: refused, the
+    outputs untouched; with --overwrite the folder holds the second run alone."""
+    out = tmp_path / "out"
+    base = ["--bundle", template_bundle, "--dataset", dataset, "--out", out, "--no-progress"]
+    base += ["--no-plot"]
+    assert _run(capsys, *base)[0] == 0
+    results = out / "chpf_bop-test.csv"
+    first = results.read_text()
+    settings = json.loads((out / "track_settings.json").read_text())
+    assert settings["seed"] == 0 and settings["config"]["n_particles"] == 50
+    assert settings["methods"] == ["chpf"] and len(settings["bundle"]["sha256"]) == 64
+
+    other = [*base, "--seed", 1, "--n-particles", 20]
+    line = _cli_error(capsys, monkeypatch, *other)
+    assert "other settings" in line and "config" in line and "seed" in line
+    assert results.read_text() == first and len(read_log(out / "log_chpf.csv")) == FRAMES
+    # a rerun with the same settings still resumes (nothing to do, nothing appended)
+    assert _run(capsys, *base)[0] == 0 and results.read_text() == first
+
+    assert _run(capsys, *other, "--overwrite")[0] == 0
+    assert len(read_log(out / "log_chpf.csv")) == FRAMES
+    assert len(read_results_csv(results)) <= FRAMES
+    fresh = tmp_path / "fresh"
+    argv = ["--bundle", template_bundle, "--dataset", dataset, "--out", fresh, "--no-progress"]
+    assert _run(capsys, *argv, "--no-plot", "--seed", 1, "--n-particles", 20)[0] == 0
+    got, want = read_results_csv(results), read_results_csv(fresh / "chpf_bop-test.csv")
+    assert [r.key for r in got] == [r.key for r in want]
+    for a, b in zip(got, want, strict=True):
+        assert np.array_equal(a.R, b.R) and np.array_equal(a.t, b.t)
+    assert json.loads((out / "track_settings.json").read_text())["seed"] == 1
+
+
+def test_second_writer_on_a_locked_out_folder_refuses(
+    template_bundle, dataset, tmp_path, capsys, monkeypatch
+):
+    """While another process holds --out (here: this test), chpf-track refuses in one line and
+    writes no rows."""
+    from chpf.outdir import lock_output_dir
+
+    out = tmp_path / "busy"
+    with lock_output_dir(out, "chpf-track"):
+        line = _cli_error(
+            capsys, monkeypatch, "--bundle", template_bundle, "--dataset", dataset, "--out", out
+        )
+    assert "another command is writing here" in line and "chpf-track, pid" in line
+    assert not list(out.glob("*.csv"))
+    assert (
+        _run(
+            capsys,
+            "--bundle",
+            template_bundle,
+            "--dataset",
+            dataset,
+            "--out",
+            out,
+            "--no-progress",
+            "--no-plot",
+        )[0]
+        == 0
+    )

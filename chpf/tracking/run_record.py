@@ -1,0 +1,66 @@
+"""What a ``chpf-track --out`` folder was made with, and how its outputs are cleared.
+
+``track_settings`` is recorded as ``track_settings.json`` beside the outputs (see
+``chpf.outdir.claim_settings``): a rerun with the same settings resumes, one with other
+settings is refused unless ``--overwrite``, which first removes every output of the old run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+from typing import Any
+
+from chpf.bundle import MANIFEST, Bundle
+from chpf.hashing import sha256_file
+from chpf.tracking.config import METHODS, TrackConfig
+from chpf.tracking.run_dataset import method_tag
+
+SETTINGS_FILE = "track_settings.json"
+REPORTS = ("auc_table.txt", "runs.json")
+"""Files a run writes besides its per-method CSVs (and the ``plots`` folder)."""
+
+
+def track_settings(
+    bundle: Bundle,
+    dataset: Path,
+    split: str,
+    scenes: list[int],
+    detections: Path | None,
+    methods: list[str],
+    modality: str,
+    seed: int,
+    config: TrackConfig,
+) -> dict[str, Any]:
+    """Everything the outputs depend on: the bundle (manifest sha256, which covers every file),
+    the dataset, split and scenes, the detections file (sha256; None = the dataset's or the
+    simulated detector), the methods, modality, seed and the full tracking config."""
+    return {
+        "bundle": {
+            "path": str(bundle.path.resolve()),
+            "sha256": sha256_file(bundle.path / MANIFEST),
+        },
+        "dataset": str(Path(dataset).resolve()),
+        "split": split,
+        "scenes": [int(s) for s in scenes],
+        "detections": None
+        if detections is None
+        else {"path": str(Path(detections).resolve()), "sha256": sha256_file(detections)},
+        "methods": list(methods),
+        "modality": modality,
+        "seed": int(seed),
+        "config": dataclasses.asdict(config),
+    }
+
+
+def clear_outputs(out: Path) -> None:
+    """Remove every chpf-track output in ``out`` (result CSVs and logs of any method, plots,
+    reports); other files stay."""
+    for m in METHODS:
+        tag = method_tag(m)
+        for p in [*out.glob(f"{tag}_*.csv"), out / f"log_{tag}.csv"]:
+            p.unlink(missing_ok=True)
+    for name in REPORTS:
+        (out / name).unlink(missing_ok=True)
+    shutil.rmtree(out / "plots", ignore_errors=True)
