@@ -52,12 +52,18 @@ _pyrender: Any = None
 
 
 def _import_pyrender() -> Any:
-    """Select the GL platform, then import pyrender (once)."""
+    """Select the GL platform, then import pyrender (once); RenderError in one line naming the
+    ``chpf[render]`` extra when it is not installed."""
     global _pyrender
     if _pyrender is None:
         select_gl_platform()
         try:
             import pyrender
+        except ImportError as err:
+            raise RenderError(
+                f"rendering needs pyrender, which is not installed ({err}): "
+                "pip install 'chpf[render]'"
+            ) from None
         except Exception as err:
             raise RenderError(f"cannot import pyrender: {type(err).__name__}: {err}") from None
         _pyrender = pyrender

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -57,8 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--demo",
         action="store_true",
-        help="generate a short occluded sequence of "
-        "the shipped bundle's object and track it with CH-PF and two baselines",
+        help="track the shipped short occluded sequence of "
+        "the shipped bundle's object with CH-PF and two baselines",
     )
     p.add_argument("--bundle", type=Path, help="model bundle folder (default for --demo: shipped)")
     p.add_argument("--dataset", type=Path, help="BOP dataset root")
@@ -81,7 +80,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--n-particles", type=int, default=None, help="particles (default 50)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--frames", type=int, default=None, help="--demo: frames to generate")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
@@ -226,8 +224,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         from chpf.tracking.demo import DEMO_METHODS, demo_dataset, shipped_bundle
 
         bundle = Bundle.load(args.bundle or shipped_bundle(), run_cfg.threads, spin=run_cfg.spin)
-        print("demo: generating (or reusing) a short occluded sequence", file=sys.stderr)
-        dataset = demo_dataset(bundle, seed=args.seed, frames=args.frames)
+        dataset = demo_dataset(bundle)
+        if args.modality != "rgb":
+            raise ConfigError(f"{dataset}: the demo sequence is RGB only (no depth frames)")
         args.detections = None
         args.split = "test"
         args.out = args.out or Path("chpf_demo")

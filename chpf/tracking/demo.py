@@ -1,34 +1,30 @@
 """``chpf-track --demo``: a short occluded sequence of the shipped bundle's object, tracked by
 CH-PF and two baselines.
 
-The sequence is generated once with ``data_gen.sequences`` (BOP layout, simulated detector)
-into a cache folder (``$CHPF_CACHE`` or ``~/.cache/chpf``) keyed by the object's fingerprint
-and the seed, and reused on later runs.
+The sequence is a shipped asset (``chpf/assets/demo/box``, a BOP root of RGB frames, ground
+truth, simulated detections and the box's model), so the demo needs neither rendering nor the
+data generator and gives the same table on every machine. It was made by ``chpf-gen-data
+sequences --objects box --num-scenes 1 --frames 60 --occlusion partial --seed 0`` with
+``sequences.width=320, height=240, focal=300, default_distractors=1`` (its
+``sequences_info.json`` records every setting), keeping the RGB frames, the JSON files and the
+target's model. ``--seed`` seeds the filters only.
 """
 
 from __future__ import annotations
 
-import os
+import json
 from pathlib import Path
 
 from chpf.bundle import Bundle
 from chpf.errors import BundleError
 
 DEMO_METHODS = ("chpf", "srl", "poserbpf")
-DEMO_SEQUENCE = {
-    "num_scenes": 1,
-    "frames": 60,
-    "occlusion": "partial",
-    "width": 320,
-    "height": 240,
-    "focal": 300.0,
-    "default_distractors": 1,
-}
+ASSETS = Path(__file__).resolve().parent.parent / "assets"
 
 
 def bundles_dir() -> Path:
     """Folder of the bundles shipped with the package (chpf/assets/bundles)."""
-    return Path(__file__).resolve().parent.parent / "assets" / "bundles"
+    return ASSETS / "bundles"
 
 
 def shipped_bundle() -> Path:
@@ -40,31 +36,21 @@ def shipped_bundle() -> Path:
     return found[0]
 
 
-def cache_dir() -> Path:
-    """Cache root for generated demo data."""
-    env = os.environ.get("CHPF_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "chpf"
-
-
-def demo_dataset(bundle: Bundle, seed: int = 0, frames: int | None = None) -> Path:
-    """BOP root of the demo sequence for the bundle's object (generated on first use)."""
-    from chpf.objects import BUILTIN_OBJECTS
-    from data_gen.config import load_config
-    from data_gen.sequences import generate_sequences
-
+def demo_dataset(bundle: Bundle) -> Path:
+    """BOP root of the shipped demo sequence; BundleError if the bundle is for another object."""
+    root = ASSETS / "demo"
+    found = {p.parent.name: p.parent for p in root.glob("*/sequences_info.json")}
     name = bundle.obj_info.name
-    if name not in BUILTIN_OBJECTS:
+    if name not in found:
         raise BundleError(
-            f"{bundle.path}: the demo generates built-in objects only "
-            f"({', '.join(BUILTIN_OBJECTS)}), this bundle is for {name!r}; "
-            "run chpf-track --dataset on your own data instead"
+            f"{bundle.path}: the shipped demo sequences show {', '.join(sorted(found))}, this "
+            f"bundle is for {name!r}; run chpf-track --dataset on your own data instead"
         )
-    seq = dict(DEMO_SEQUENCE)
-    if frames is not None:
-        seq["frames"] = int(frames)
-    fp = (bundle.obj_info.fingerprint or "nofp")[:12]
-    root = cache_dir() / "demo" / f"{name}-{fp}-s{seed}-f{seq['frames']}"
-    cfg = load_config(None, [f"sequences.{k}={v}" for k, v in seq.items()])
-    # overwrite: a cache made by another version's settings is replaced, a matching one reused
-    generate_sequences([name], root, cfg, seed, split="test", overwrite=True, progress=True)
-    return root
+    info = json.loads((found[name] / "sequences_info.json").read_text(encoding="utf-8"))
+    target = next(o for o in info["objects"] if o["role"] == "target")
+    if target["obj_id"] != bundle.obj_info.obj_id:
+        raise BundleError(
+            f"{bundle.path}: bundle has obj_id {bundle.obj_info.obj_id}, the demo sequence's "
+            f"{name} has obj_id {target['obj_id']}"
+        )
+    return found[name]

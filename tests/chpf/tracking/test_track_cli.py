@@ -171,12 +171,9 @@ def test_refusals(template_bundle, dataset, tmp_path, capsys):
     assert exc.value.code == 2 and len(err) == 1 and err[0].startswith("error: ")
 
 
-def test_demo_runs_chpf_and_two_baselines(template_bundle, tmp_path, capsys, monkeypatch):
-    monkeypatch.setenv("CHPF_CACHE", str(tmp_path / "cache"))
+def test_demo_runs_chpf_and_two_baselines(template_bundle, tmp_path, capsys):
     out = tmp_path / "demo"
-    code, lines = _run(
-        capsys, "--demo", "--bundle", template_bundle, "--frames", 5, "--out", out, "--no-progress"
-    )
+    code, lines = _run(capsys, "--demo", "--bundle", template_bundle, "--out", out, "--no-progress")
     assert code == 0 and lines[0].startswith("detections: simulated detector")
     table = (out / "auc_table.txt").read_text()
     for m in ("chpf", "srl", "poserbpf"):
