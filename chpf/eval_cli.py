@@ -41,6 +41,7 @@ from chpf.atomic import atomic_write_text
 from chpf.bop import BopDataset
 from chpf.console import run_main, scene_list
 from chpf.errors import DatasetError
+from chpf.outdir import lock_output_path
 from chpf.results import ResultRow, read_results_csv
 
 __all__ = ["cli", "evaluate", "format_table", "main", "object_errors"]
@@ -218,7 +219,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if report["ignored_rows"]:
         print(f"({report['ignored_rows']} result rows matched no ground-truth instance)")
     if args.json is not None:
-        atomic_write_text(args.json, json.dumps(report, indent=2) + "\n")
+        with lock_output_path(args.json, "chpf-eval"):
+            atomic_write_text(args.json, json.dumps(report, indent=2) + "\n")
     return 0
 
 

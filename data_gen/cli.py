@@ -22,6 +22,7 @@ from pathlib import Path
 
 from chpf.console import run_main
 from chpf.errors import ConfigError
+from chpf.outdir import lock_output_path
 from data_gen import config as C
 
 
@@ -261,6 +262,9 @@ def main(argv: list[str] | None = None) -> int:
         "bench": _cmd_bench,
         "contact-sheet": _cmd_contact_sheet,
     }[args.cmd]
+    if args.cmd in ("pairs", "ae", "sequences"):  # one writer per output folder at a time
+        with lock_output_path(args.out, f"chpf-gen-data {args.cmd}"):
+            return cmd(args)
     return cmd(args)
 
 

@@ -12,6 +12,7 @@ import time
 
 from chpf import __version__
 from chpf.console import run_main
+from chpf.outdir import lock_output_path
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,15 +58,16 @@ def main(argv: list[str] | None = None) -> int:
     d.update({k: v for k, v in overrides.items() if v is not None})
     cfg = ExportConfig.from_dict(d, "command line")
     t0 = time.perf_counter()
-    res = export_bundle(
-        args.ae,
-        args.ch,
-        args.object,
-        args.out,
-        cfg,
-        overwrite=args.overwrite,
-        progress=not args.quiet,
-    )
+    with lock_output_path(args.out, "chpf-export"):
+        res = export_bundle(
+            args.ae,
+            args.ch,
+            args.object,
+            args.out,
+            cfg,
+            overwrite=args.overwrite,
+            progress=not args.quiet,
+        )
     m = res.manifest
     worst = max(res.parity.values())
     print(
