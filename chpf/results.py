@@ -9,7 +9,6 @@ rotation (``|R R^T - I| > 1e-3`` or ``det R < 0``).
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import numpy as np
 
 from chpf.atomic import atomic_write_text
 from chpf.errors import ResultsFormatError
+from chpf.resumable_csv import ResumableCsv
 
 __all__ = ["HEADER", "ResultRow", "ResultsAppender", "read_results_csv", "write_results_csv"]
 
@@ -127,59 +127,18 @@ def write_results_csv(path: str | Path, rows: list[ResultRow]) -> None:
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
-class ResultsAppender:
-    """Append rows to a results CSV one at a time, flushing each (resumable long runs).
-
-    A new or empty file gets the header. An existing file is validated; a partial last line (a run
-    killed mid-write) is cut off so that the file stays valid. ``done_keys()`` lists the
-    (scene_id, im_id, obj_id) already present, to skip them when resuming.
-    """
+class ResultsAppender(ResumableCsv):
+    """Append rows to a results CSV one at a time, flushing each (resumable long runs; see
+    ``chpf.resumable_csv``). Rows already in the file are validated; ``done_keys()`` lists their
+    (scene_id, im_id, obj_id)."""
 
     def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self._keys: set[tuple[int, int, int]] = set()
-        if self.path.is_file() and self.path.stat().st_size > 0:
-            data = self.path.read_bytes()
-            if not data.endswith(b"\n"):
-                cut = data.rfind(b"\n") + 1
-                with open(self.path, "r+b") as f:
-                    f.truncate(cut)
-                data = data[:cut]
-            text = data.decode("utf-8", errors="replace")
-            for lineno, line in _iter_lines(self.path, text):
-                self._keys.add(parse_row(line, self.path, lineno).key)
-            write_header = not data.strip()
-        else:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            write_header = True
-        self._f = open(self.path, "a", encoding="utf-8")
-        if write_header:
-            self._f.write(HEADER + "\n")
-            self._f.flush()
+        super().__init__(path, HEADER, _row_keys)
 
     def append(self, row: ResultRow) -> None:
         """Write one row and flush it to the OS."""
-        self._f.write(format_row(row) + "\n")
-        self._f.flush()
-        self._keys.add(row.key)
+        self.append_line(row.key, format_row(row))
 
-    def done_keys(self) -> set[tuple[int, int, int]]:
-        """Keys (scene_id, im_id, obj_id) in the file, including rows appended so far."""
-        return set(self._keys)
 
-    def close(self) -> None:
-        if not self._f.closed:
-            self._f.flush()
-            os.fsync(self._f.fileno())
-            self._f.close()
-
-    def __enter__(self) -> ResultsAppender:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        f = getattr(self, "_f", None)
-        if f is not None and not f.closed:
-            f.close()
+def _row_keys(path: Path, text: str) -> list[tuple[int, int, int]]:
+    return [parse_row(line, path, lineno).key for lineno, line in _iter_lines(path, text)]

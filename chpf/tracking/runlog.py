@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from chpf.errors import DatasetError
+from chpf.resumable_csv import ResumableCsv
 from chpf.tracking.types import TrackResult
 
 STAGES = (
@@ -68,31 +69,11 @@ class LogRow:
     values: dict[str, float]
 
 
-class FrameLog:
-    """Append-only per-frame log (see the module docstring). Use as a context manager."""
+class FrameLog(ResumableCsv):
+    """Append-only per-frame log (see the module docstring and ``chpf.resumable_csv``)."""
 
     def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self._keys: set[tuple[int, int, int]] = set()
-        new = not self.path.is_file() or self.path.stat().st_size == 0
-        if not new:
-            data = self.path.read_bytes()
-            if not data.endswith(b"\n"):
-                cut = data.rfind(b"\n") + 1
-                with open(self.path, "r+b") as f:
-                    f.truncate(cut)
-            for row in read_log(self.path):
-                self._keys.add((row.scene_id, row.im_id, row.obj_id))
-            new = self.path.stat().st_size == 0
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "a", encoding="utf-8", newline="")
-        if new:
-            self._f.write(",".join(COLUMNS) + "\n")
-            self._f.flush()
-
-    def done_keys(self) -> set[tuple[int, int, int]]:
-        """(scene_id, im_id, obj_id) already logged."""
-        return set(self._keys)
+        super().__init__(path, ",".join(COLUMNS), _log_keys)
 
     def append(
         self,
@@ -108,25 +89,22 @@ class FrameLog:
         cells += [_num(v) for v in (result.alpha, result.sum_L, result.sum_C, result.ess)]
         cells += [_num(err_add), _num(err_adds)]
         cells += [_num(result.stage_ms.get(s, float("nan"))) for s in STAGES]
-        self._f.write(",".join(cells) + "\n")
-        self._f.flush()
-        self._keys.add(tuple(int(k) for k in key))  # type: ignore[arg-type]
+        self.append_line((int(key[0]), int(key[1]), int(key[2])), ",".join(cells))
 
-    def close(self) -> None:
-        if not self._f.closed:
-            self._f.close()
 
-    def __enter__(self) -> FrameLog:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+def _log_keys(path: Path, text: str) -> list[tuple[int, int, int]]:
+    return [(r.scene_id, r.im_id, r.obj_id) for r in parse_log(text, path)]
 
 
 def read_log(path: str | Path) -> list[LogRow]:
     """All rows of a frame log; DatasetError on a file with other columns."""
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
+    return parse_log(path.read_text(encoding="utf-8"), path)
+
+
+def parse_log(text: str, path: Path) -> list[LogRow]:
+    """Rows of a frame log's text (partial lines skipped); DatasetError naming ``path`` on a
+    file with other columns."""
     reader = csv.reader(io.StringIO(text))
     header = next(reader, None)
     if header is None:

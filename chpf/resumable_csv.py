@@ -1,0 +1,72 @@
+"""Append-only CSV files that a rerun resumes: the one writer under the BOP result CSVs
+(``chpf.results.ResultsAppender``) and the tracking frame logs (``chpf.tracking.runlog.FrameLog``).
+
+Opening an existing file cuts a partial last line (a run killed mid-write), reads the keys of
+the rows already there (``done_keys``, to skip them) and appends after them; a new or empty
+file gets the header. Every row is flushed to the OS as it is written, and ``close`` fsyncs.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+Key = tuple[int, int, int]
+"""(scene_id, im_id, obj_id) of a row."""
+
+
+class ResumableCsv:
+    """See the module docstring. ``read_keys(path, text)`` returns the keys of the rows in the
+    file's complete lines (raising a ChpfError naming the file on malformed rows)."""
+
+    def __init__(
+        self, path: str | Path, header: str, read_keys: Callable[[Path, str], Iterable[Key]]
+    ) -> None:
+        self.path = Path(path)
+        self._keys: set[Key] = set()
+        text = ""
+        if self.path.is_file():
+            data = self.path.read_bytes()
+            if data and not data.endswith(b"\n"):
+                cut = data.rfind(b"\n") + 1
+                with open(self.path, "r+b") as f:
+                    f.truncate(cut)
+                data = data[:cut]
+            text = data.decode("utf-8", errors="replace")
+        else:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        if text.strip():
+            self._keys.update(read_keys(self.path, text))
+        self._f = open(self.path, "a", encoding="utf-8", newline="")
+        if not text.strip():
+            self._f.write(header + "\n")
+            self._f.flush()
+
+    def append_line(self, key: Key, line: str) -> None:
+        """Write one row (``line`` without newline) and flush it to the OS."""
+        self._f.write(line + "\n")
+        self._f.flush()
+        self._keys.add(key)
+
+    def done_keys(self) -> set[Key]:
+        """Keys of the rows in the file, including the ones appended so far."""
+        return set(self._keys)
+
+    def close(self) -> None:
+        """Flush, fsync and close (idempotent)."""
+        if not self._f.closed:
+            self._f.flush()
+            os.fsync(self._f.fileno())
+            self._f.close()
+
+    def __enter__(self) -> ResumableCsv:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        f = getattr(self, "_f", None)
+        if f is not None and not f.closed:
+            f.close()
