@@ -42,6 +42,12 @@ from chpf.errors import BopFormatError, DatasetError, ImageSizeError
 from chpf.results import ResultRow, ResultsAppender, read_results_csv, write_results_csv
 
 __all__ = [
+    "DETECTIONS_SIM",
+    "MODELS_INFO",
+    "SCENE_CAMERA",
+    "SCENE_GT",
+    "SCENE_GT_INFO",
+    "SEQUENCES_INFO",
     "BopDataset",
     "BopScene",
     "CameraInfo",
@@ -54,6 +60,8 @@ __all__ = [
     "gt_info_from_masks",
     "mask_visib_path",
     "model_info_from_object",
+    "model_path",
+    "models_dir",
     "read_detections",
     "read_results_csv",
     "rgb_path",
@@ -126,6 +134,25 @@ class ModelInfo:
 
 
 # ----------------------------------------------------------------------------- paths
+
+SCENE_CAMERA = "scene_camera.json"
+SCENE_GT = "scene_gt.json"
+SCENE_GT_INFO = "scene_gt_info.json"
+MODELS_INFO = "models_info.json"
+DETECTIONS_SIM = "detections_sim.json"
+"""Boxes of the simulated detector, per scene and for the root (written by chpf-gen-data)."""
+SEQUENCES_INFO = "sequences_info.json"
+"""The settings a chpf-gen-data sequences root was made with."""
+
+
+def models_dir(root: str | Path) -> Path:
+    """``ROOT/models``."""
+    return Path(root) / "models"
+
+
+def model_path(root: str | Path, obj_id: int) -> Path:
+    """``ROOT/models/obj_{obj_id:06d}.ply``."""
+    return models_dir(root) / f"obj_{obj_id:06d}.ply"
 
 
 def scene_dir(root: str | Path, split: str, scene_id: int) -> Path:
@@ -600,9 +627,9 @@ class BopScene:
             except ValueError:
                 raise DatasetError(f"{self.path}: scene folder name is not an integer") from None
         self.scene_id = int(scene_id)
-        self.cameras: dict[int, CameraInfo] = read_scene_camera(self.path / "scene_camera.json")
-        gt_file = self.path / "scene_gt.json"
-        info_file = self.path / "scene_gt_info.json"
+        self.cameras: dict[int, CameraInfo] = read_scene_camera(self.path / SCENE_CAMERA)
+        gt_file = self.path / SCENE_GT
+        info_file = self.path / SCENE_GT_INFO
         self.gt: dict[int, list[GtPose]] = read_scene_gt(gt_file) if gt_file.is_file() else {}
         self.gt_info: dict[int, list[GtInfo]] = (
             read_scene_gt_info(info_file) if info_file.is_file() else {}
@@ -627,7 +654,7 @@ class BopScene:
             return self.cameras[im_id]
         except KeyError:
             raise DatasetError(
-                f"{self.path / 'scene_camera.json'}: no camera for image {im_id}"
+                f"{self.path / SCENE_CAMERA}: no camera for image {im_id}"
             ) from None
 
     def rgb_path(self, im_id: int) -> Path:
@@ -709,9 +736,9 @@ class BopDataset:
         self.root = Path(root)
         if not self.root.is_dir():
             raise DatasetError(f"{self.root}: dataset folder not found")
-        has_models = (self.root / "models" / "models_info.json").is_file()
+        has_models = (models_dir(self.root) / MODELS_INFO).is_file()
         has_scenes = any(
-            (d / "scene_camera.json").is_file() for s in _subdirs(self.root) for d in _subdirs(s)
+            (d / SCENE_CAMERA).is_file() for s in _subdirs(self.root) for d in _subdirs(s)
         )
         if not (has_models or has_scenes):
             raise DatasetError(
@@ -725,7 +752,7 @@ class BopDataset:
 
     @property
     def models_info_path(self) -> Path:
-        return self.root / "models" / "models_info.json"
+        return models_dir(self.root) / MODELS_INFO
 
     def models_info(self) -> dict[int, ModelInfo]:
         """``{obj_id: ModelInfo}`` from ``models/models_info.json`` (metres), cached."""
@@ -735,7 +762,7 @@ class BopDataset:
 
     def model_path(self, obj_id: int) -> Path:
         """``ROOT/models/obj_{obj_id:06d}.ply``."""
-        return self.root / "models" / f"obj_{obj_id:06d}.ply"
+        return model_path(self.root, obj_id)
 
     def load_object(self, obj_id: int) -> Any:
         """``ObjectModel`` of ``obj_id``: mesh mm -> m; diameter and symmetries from models_info."""

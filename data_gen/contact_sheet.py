@@ -8,6 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from chpf import bop
 from chpf.atomic import atomic_write_bytes
 from chpf.errors import DatasetError
 from data_gen.shards import MANIFEST, ShardDataset
@@ -139,10 +140,10 @@ def contact_sheet(
             raise DatasetError(f"{path}: no complete shard yet")
         sheet = pairs_sheet(ds, n) if ds.kind == "pairs" else ae_sheet(ds, n)
         return _save_png(out, sheet)
-    if (path / "scene_gt.json").is_file() or (path / "scene_camera.json").is_file():
+    if (path / bop.SCENE_GT).is_file() or (path / bop.SCENE_CAMERA).is_file():
         root = path.parent.parent
-        return _save_png(out, sequence_sheet(path, n, root / "detections_sim.json"))
-    info = path / "sequences_info.json"
+        return _save_png(out, sequence_sheet(path, n, root / bop.DETECTIONS_SIM))
+    info = path / bop.SEQUENCES_INFO
     split = json.loads(info.read_text())["split"] if info.is_file() else "test"
     scenes = (
         sorted(p for p in (path / split).glob("[0-9]*") if p.is_dir())
@@ -153,4 +154,4 @@ def contact_sheet(
         scenes = [p for p in scenes if int(p.name) == scene_id]
     if not scenes:
         raise DatasetError(f"{path}: not a pairs/ae folder, BOP root or scene folder")
-    return _save_png(out, sequence_sheet(scenes[0], n, path / "detections_sim.json"))
+    return _save_png(out, sequence_sheet(scenes[0], n, path / bop.DETECTIONS_SIM))

@@ -39,8 +39,6 @@ from chpf.errors import ConfigError, DatasetError
 from chpf.geometry import axis_angle_to_matrix, random_rotations
 from data_gen import augment
 
-INFO = "sequences_info.json"
-DETECTIONS = "detections_sim.json"
 FPS = 30.0
 FORMAT_VERSION = 1
 # occluder depth as a fraction of the target's, and the target's visible fraction aimed at
@@ -105,8 +103,8 @@ def write_models(root: Path, scene_objs: list[SceneObject]) -> None:
             mesh.visual = mesh.visual.to_color()
         mesh.apply_scale(1000.0)
         data = mesh.export(file_type="ply", encoding="binary")
-        atomic_write_bytes(root / "models" / f"obj_{s.obj_id:06d}.ply", data)
-    bop.write_models_info(root / "models" / "models_info.json", dict(sorted(infos.items())))
+        atomic_write_bytes(bop.model_path(root, s.obj_id), data)
+    bop.write_models_info(bop.models_dir(root) / bop.MODELS_INFO, dict(sorted(infos.items())))
 
 
 # ----------------------------------------------------------------------------- trajectories
@@ -347,7 +345,7 @@ def _info_dict(
 
 
 def _prepare(root: Path, info: dict, overwrite: bool) -> None:
-    path = root / INFO
+    path = root / bop.SEQUENCES_INFO
     if path.is_file():
         try:
             old = json.loads(path.read_text(encoding="utf-8"))
@@ -365,11 +363,13 @@ def _prepare(root: Path, info: dict, overwrite: bool) -> None:
                 shutil.rmtree(bop.scene_dir(root, split, int(s["scene_id"])), ignore_errors=True)
             for p in (root / split).glob("[0-9]" * 6) if (root / split).is_dir() else []:
                 shutil.rmtree(p, ignore_errors=True)
-            (root / DETECTIONS).unlink(missing_ok=True)
-            for p in (root / "models").glob("obj_*.ply"):
+            (root / bop.DETECTIONS_SIM).unlink(missing_ok=True)
+            for p in bop.models_dir(root).glob("obj_*.ply"):
                 p.unlink()
     elif root.exists() and any(root.iterdir()) and not overwrite:
-        raise DatasetError(f"{root}: folder is not empty and has no {INFO}; use --overwrite")
+        raise DatasetError(
+            f"{root}: folder is not empty and has no {bop.SEQUENCES_INFO}; use --overwrite"
+        )
 
 
 def render_scene(
@@ -438,9 +438,9 @@ def render_scene(
         visib.append(frame_info[0].visib_fract)
         if bar is not None:
             bar.update(1)
-    bop.write_scene_camera(sdir / "scene_camera.json", cameras)
-    bop.write_scene_gt(sdir / "scene_gt.json", gts)
-    bop.write_scene_gt_info(sdir / "scene_gt_info.json", infos)
+    bop.write_scene_camera(sdir / bop.SCENE_CAMERA, cameras)
+    bop.write_scene_gt(sdir / bop.SCENE_GT, gts)
+    bop.write_scene_gt_info(sdir / bop.SCENE_GT_INFO, infos)
     v = np.asarray(visib)
     summary = {
         "scene_id": int(scene_id),
@@ -454,7 +454,7 @@ def render_scene(
         "detections": len(dets),
     }
     # the per-scene detections file is written last: it marks the scene complete
-    bop.write_detections(sdir / DETECTIONS, dets)
+    bop.write_detections(sdir / bop.DETECTIONS_SIM, dets)
     return dets, summary
 
 
@@ -481,9 +481,11 @@ def generate_sequences(
     _prepare(root, info, overwrite)
     root.mkdir(parents=True, exist_ok=True)
     write_models(root, scene_objs)
-    atomic_write_text(root / INFO, json.dumps(info, indent=1) + "\n")
+    atomic_write_text(root / bop.SEQUENCES_INFO, json.dumps(info, indent=1) + "\n")
     scene_ids = list(range(1, sc["num_scenes"] + 1))
-    todo = [s for s in scene_ids if not (bop.scene_dir(root, split, s) / DETECTIONS).is_file()]
+    todo = [
+        s for s in scene_ids if not (bop.scene_dir(root, split, s) / bop.DETECTIONS_SIM).is_file()
+    ]
     bar = tqdm(
         total=len(todo) * sc["frames"], desc="sequences", unit="frame", disable=not progress or None
     )
@@ -500,9 +502,9 @@ def generate_sequences(
     all_dets, summaries = [], []
     for s in scene_ids:
         sdir = bop.scene_dir(root, split, s)
-        dets = json.loads((sdir / DETECTIONS).read_text(encoding="utf-8"))
+        dets = json.loads((sdir / bop.DETECTIONS_SIM).read_text(encoding="utf-8"))
         all_dets += dets
-        gt_info = bop.read_scene_gt_info(sdir / "scene_gt_info.json")
+        gt_info = bop.read_scene_gt_info(sdir / bop.SCENE_GT_INFO)
         v = np.array([gt_info[i][0].visib_fract for i in sorted(gt_info)])
         summaries.append(
             {
@@ -519,7 +521,7 @@ def generate_sequences(
                 ),
             }
         )
-    bop.write_detections(root / DETECTIONS, all_dets)
+    bop.write_detections(root / bop.DETECTIONS_SIM, all_dets)
     info["scenes"] = summaries
-    atomic_write_text(root / INFO, json.dumps(info, indent=1) + "\n")
+    atomic_write_text(root / bop.SEQUENCES_INFO, json.dumps(info, indent=1) + "\n")
     return info

@@ -26,7 +26,7 @@ from chpf.console import run_main
 from chpf.errors import DatasetError
 
 
-def build_codebook(
+def render_eval_codebook(
     data_dir: str | os.PathLike,
     k: int,
     object_name: str | None = None,
@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cache-dir", default=None, help="data_gen pool cache folder")
     p.add_argument("--workers", type=int, default=1)
     a = p.parse_args(argv)
-    arrays = build_codebook(a.data, a.k, a.object, a.unit, a.cache_dir, a.workers)
+    arrays = render_eval_codebook(a.data, a.k, a.object, a.unit, a.cache_dir, a.workers)
     save_codebook(a.out, arrays)
     print(f"wrote {a.out}: {arrays['rotations'].shape[0]} entries, crop {arrays['crop_size']}")
     return 0

@@ -316,9 +316,9 @@ def main(argv: list[str] | None = None) -> int:
             cb.setdefault("symmetries_discrete", np.zeros((0, 4, 4)))
             cb.setdefault("symmetries_continuous_axes", np.zeros((0, 3)))
         else:
-            from training.codebook import build_codebook
+            from training.codebook import render_eval_codebook
 
-            cb = build_codebook(a.data, a.codebook_k, a.object, "m", a.cache_dir, a.workers)
+            cb = render_eval_codebook(a.data, a.codebook_k, a.object, "m", a.cache_dir, a.workers)
         res["ae"] = evaluate_ae(a.ae, a.data, cb, a.max_samples, a.seed)
     if a.pairs:
         res["pairs"] = evaluate_pairs(a.pairs, a.ae, a.ch, a.max_samples, a.seed)

@@ -14,12 +14,17 @@ from pathlib import Path
 
 import numpy as np
 
-from chpf.bop import BopDataset, BopScene, read_detections
+from chpf.bop import (
+    DETECTIONS_SIM,
+    SCENE_GT_INFO,
+    BopDataset,
+    BopScene,
+    read_detections,
+    scene_dir,
+)
 from chpf.detections import SIMULATED_DETECTOR_DEFAULTS, SimulatedDetector
 from chpf.errors import DatasetError
 from chpf.tracking.types import Box
-
-SIM_FILE = "detections_sim.json"
 
 
 class BoxSource:
@@ -87,11 +92,11 @@ def make_box_source(
     """The box source for a run (see the module docstring); DatasetError if there is none."""
     if detections is not None:
         return FileBoxes(Path(detections))
-    sim = dataset.root / SIM_FILE
+    sim = dataset.root / DETECTIONS_SIM
     if sim.is_file():
         return FileBoxes(sim, simulated=True)
     has_info = any(
-        (dataset.split_path(split) / f"{s:06d}" / "scene_gt_info.json").is_file()
+        (scene_dir(dataset.root, split, s) / SCENE_GT_INFO).is_file()
         for s in dataset.scene_ids(split)
     )
     if not has_info:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from chpf.bop import SEQUENCES_INFO
 from chpf.bundle import Bundle
 from chpf.errors import BundleError
 
@@ -39,14 +40,14 @@ def shipped_bundle() -> Path:
 def demo_dataset(bundle: Bundle) -> Path:
     """BOP root of the shipped demo sequence; BundleError if the bundle is for another object."""
     root = ASSETS / "demo"
-    found = {p.parent.name: p.parent for p in root.glob("*/sequences_info.json")}
+    found = {p.parent.name: p.parent for p in root.glob(f"*/{SEQUENCES_INFO}")}
     name = bundle.obj_info.name
     if name not in found:
         raise BundleError(
             f"{bundle.path}: the shipped demo sequences show {', '.join(sorted(found))}, this "
             f"bundle is for {name!r}; run chpf-track --dataset on your own data instead"
         )
-    info = json.loads((found[name] / "sequences_info.json").read_text(encoding="utf-8"))
+    info = json.loads((found[name] / SEQUENCES_INFO).read_text(encoding="utf-8"))
     target = next(o for o in info["objects"] if o["role"] == "target")
     if target["obj_id"] != bundle.obj_info.obj_id:
         raise BundleError(
