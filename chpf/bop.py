@@ -653,9 +653,7 @@ class BopScene:
         try:
             return self.cameras[im_id]
         except KeyError:
-            raise DatasetError(
-                f"{self.path / SCENE_CAMERA}: no camera for image {im_id}"
-            ) from None
+            raise DatasetError(f"{self.path / SCENE_CAMERA}: no camera for image {im_id}") from None
 
     def rgb_path(self, im_id: int) -> Path:
         """Path of the colour image (png, else jpg); the png path if neither exists."""

@@ -81,6 +81,16 @@ def lock_output_path(path: str | os.PathLike, command: str) -> Iterator[Path]:
         yield path
 
 
+def differing_keys(a: Any, b: Any, prefix: str = "") -> list[str]:
+    """Dotted names of the leaves where two JSON-like values differ ("config.seed", ...)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for k in sorted(set(a) | set(b), key=str):
+            out += differing_keys(a.get(k), b.get(k), f"{prefix}.{k}" if prefix else str(k))
+        return out
+    return [] if a == b else [prefix]
+
+
 def claim_settings(
     folder: str | os.PathLike, name: str, settings: dict[str, Any], overwrite: bool
 ) -> bool:
@@ -105,11 +115,11 @@ def claim_settings(
         if old == settings:
             return False
         if not overwrite:
-            keys = settings.keys() | old.keys()
-            changed = sorted(k for k in keys if old.get(k) != settings.get(k))
+            changed = differing_keys(old, settings)
+            shown = ", ".join(changed[:4]) + (" ..." if len(changed) > 4 else "")
             raise OutputError(
-                f"{folder}: holds outputs made with other settings ({', '.join(changed)} differ, "
-                f"see {name}); use --overwrite to replace them or choose another folder"
+                f"{folder}: holds outputs made with other settings ({shown} differ, see {name}); "
+                "use --overwrite to replace them or choose another folder"
             )
         stale = True
     else:

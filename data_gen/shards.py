@@ -16,6 +16,7 @@ import numpy as np
 
 from chpf.atomic import atomic_write_text
 from chpf.errors import DatasetError
+from chpf.outdir import differing_keys
 
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
@@ -156,15 +157,6 @@ IDENTITY_KEYS = (
 )
 
 
-def _diff_keys(a: Any, b: Any, prefix: str = "") -> list[str]:
-    if isinstance(a, dict) and isinstance(b, dict):
-        out = []
-        for k in sorted(set(a) | set(b), key=str):
-            out += _diff_keys(a.get(k), b.get(k), f"{prefix}.{k}" if prefix else str(k))
-        return out
-    return [] if a == b else [prefix]
-
-
 def read_manifest(out_dir: str | Path) -> dict:
     """Parsed ``DIR/manifest.json`` (``DatasetError`` if missing or malformed)."""
     path = Path(out_dir) / MANIFEST
@@ -201,7 +193,9 @@ def prepare_output(
             old = {}
         diff = ["manifest"]
         if isinstance(old, dict):
-            diff = [d for k in IDENTITY_KEYS for d in _diff_keys(old.get(k), manifest.get(k), k)]
+            diff = [
+                d for k in IDENTITY_KEYS for d in differing_keys(old.get(k), manifest.get(k), k)
+            ]
         if diff:
             if not overwrite:
                 shown = ", ".join(diff[:4]) + (" ..." if len(diff) > 4 else "")
