@@ -144,7 +144,6 @@ def track(
             raise DatasetError(f"{ds.split_path(args.split)}: no scene(s) {missing}")
         scenes = [s for s in scenes if s in set(args.scenes)]
     boxes = make_box_source(ds, args.split, args.detections, args.seed)
-    print(boxes.description, flush=True)
     obj_id = bundle.obj_info.obj_id
     ids = _dataset_obj_ids(ds, args.split, scenes)
     if ids and obj_id not in ids:
@@ -157,13 +156,6 @@ def track(
         m: Tracker(bundle, method=m, modality=args.modality, seed=args.seed, config=cfg)
         for m in methods
     }
-    points = None
-    has_gt = any(ds.scene(args.split, s).gt for s in scenes)
-    if has_gt:
-        try:
-            points = ds.load_object(obj_id).points
-        except Exception as err:  # no mesh: track anyway, without per-frame errors
-            print(f"note: no per-frame errors ({err})")
     out = args.out or Path("chpf_track_out")
     with lock_output_dir(out, "chpf-track"):
         settings = track_settings(
@@ -179,6 +171,14 @@ def track(
         )
         if claim_settings(out, SETTINGS_FILE, settings, args.overwrite or fresh) or fresh:
             clear_outputs(out)
+        print(boxes.description, flush=True)
+        points = None
+        has_gt = any(ds.scene(args.split, s).gt for s in scenes)
+        if has_gt:
+            try:
+                points = ds.load_object(obj_id).points
+            except Exception as err:  # no mesh: track anyway, without per-frame errors
+                print(f"note: no per-frame errors ({err})")
         print(
             f"tracking obj_id {obj_id} ({bundle.obj_info.name}) in {len(scenes)} scene(s) with "
             f"{', '.join(methods)} [{args.modality}, N={cfg.n_particles}] -> {out}",
