@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set up chpf in ./.venv on a fresh machine: system GL libraries for headless rendering,
-# then the package with its training and dev extras at this machine's pinned versions.
+# then the package with its training (which pulls in [render]) and dev extras at this machine's
+# pinned versions.
 set -euo pipefail
 cd "$(dirname "$0")"
 if ! ldconfig -p | grep -q 'libEGL.so.1'; then
