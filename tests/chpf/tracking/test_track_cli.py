@@ -163,15 +163,22 @@ def test_refusals(template_bundle, dataset, tmp_path, capsys):
         parse_methods("chpf,bogus")
     assert parse_methods("all")[0] == "chpf" and "poserbpf++" in parse_methods("all")
     # the console script prints one line and exits 2
-    argv = sys.argv
-    sys.argv = ["chpf-track", "--bundle", str(tmp_path / "nope"), "--dataset", str(dataset)]
+    code, err = _console_script(
+        ["--bundle", str(tmp_path / "nope"), "--dataset", str(dataset)], capsys
+    )
+    assert code == 2 and len(err) == 1 and err[0].startswith("error: ")
+
+
+def _console_script(argv: list[str], capsys) -> tuple[int, list[str]]:
+    """Exit code and stderr lines of the chpf-track console script run with ``argv``."""
+    saved = sys.argv
+    sys.argv = ["chpf-track", *argv]
     try:
         with pytest.raises(SystemExit) as exc:
             cli()
     finally:
-        sys.argv = argv
-    err = capsys.readouterr().err.strip().splitlines()
-    assert exc.value.code == 2 and len(err) == 1 and err[0].startswith("error: ")
+        sys.argv = saved
+    return exc.value.code, capsys.readouterr().err.strip().splitlines()
 
 
 def test_set_options_reach_the_trackers_and_bad_ones_exit_2(dataset, capsys):
@@ -191,15 +198,10 @@ def test_set_options_reach_the_trackers_and_bad_ones_exit_2(dataset, capsys):
     assert cfg.srl.beta == 0.5 and cfg.likelihood.sigma == 0.2 and cfg.filter.n_particles == 20
     assert cfg.candidates.rotations == "codebook"  # the file's keys stay
     for bad, needle in (("srl.betta=1", "unknown key srl.betta"), ("srl.beta=-1", "srl.beta")):
-        argv = sys.argv
-        sys.argv = ["chpf-track", "--dataset", str(dataset), "--bundle", "b", "--set", bad]
-        try:
-            with pytest.raises(SystemExit) as exc:
-                cli()
-        finally:
-            sys.argv = argv
-        err = capsys.readouterr().err.strip().splitlines()
-        assert exc.value.code == 2 and len(err) == 1 and err[0].startswith("error: --set: ")
+        code, err = _console_script(
+            ["--dataset", str(dataset), "--bundle", "b", "--set", bad], capsys
+        )
+        assert code == 2 and len(err) == 1 and err[0].startswith("error: --set: ")
         assert needle in err[0]
 
 
