@@ -134,7 +134,7 @@ class Tracker:
         cls,
         path: str | Path | Bundle,
         method: str = "chpf",
-        n_particles: int = 50,
+        n_particles: int | None = 50,
         modality: str = "rgb",
         seed: int = 0,
         config: str | Path | dict[str, Any] | TrackConfig | None = None,
@@ -144,13 +144,14 @@ class Tracker:
 
         ``config``: a YAML file / nested dict / TrackConfig; ``sections`` override keys of
         its sections (e.g. motion={"sigma_t": 0.02}, srl={"beta": 0.5}); n_particles sets
-        filter.n_particles. Raises BundleError / ConfigError.
+        filter.n_particles (None: the config's). Raises BundleError / ConfigError.
         """
-        overrides = {
-            **sections,
-            "filter": {**sections.get("filter", {}), "n_particles": n_particles},
-        }
-        cfg = make_config(config, **overrides)
+        if n_particles is not None:
+            sections = {
+                **sections,
+                "filter": {**sections.get("filter", {}), "n_particles": n_particles},
+            }
+        cfg = make_config(config, **sections)
         if isinstance(path, Bundle):
             bundle = path
         else:

@@ -31,7 +31,7 @@ def test_default_yaml_matches_the_dataclass_defaults():
 
 @pytest.mark.parametrize("path", sorted(CONFIGS.glob("track_*.yaml")), ids=lambda p: p.name)
 def test_every_track_yaml_sets_only_known_keys(path):
-    """The other files override a subset; each value differs from nothing unknown."""
+    """The other files override a subset of the documented keys, in the same nested form."""
     data = yaml.safe_load(path.read_text())
     defaults = to_dict(TrackConfig())
     for section, keys in data.items():
