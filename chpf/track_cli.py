@@ -5,6 +5,7 @@ Usage::
     chpf-track --bundle B --dataset BOP_DIR [--split test] [--scenes 1,2]
                [--method chpf|srl|augmcl|annealing|e2e|poserbpf|poserbpf++|fixed|none|all|a,b]
                [--modality rgb|rgbd] [--detections FILE] [--out DIR] [--config YAML] [--seed 0]
+               [--set section.key=value ...]
     chpf-track --demo [--bundle B] [--out DIR]
 
 Writes to ``--out``: per method a BOP result CSV (``METHOD_DATASET-SPLIT.csv``, readable by
@@ -20,6 +21,7 @@ import argparse
 import json
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from chpf.atomic import atomic_write_text
 from chpf.bop import BopDataset, read_results_csv
@@ -28,7 +30,8 @@ from chpf.console import run_main, scene_list
 from chpf.errors import BundleError, ConfigError, DatasetError
 from chpf.outdir import claim_settings, lock_output_dir
 from chpf.tracking.boxes import make_box_source
-from chpf.tracking.config import METHODS, MODALITIES, PAPER_METHODS, make_config
+from chpf.tracking.config import MODALITIES, make_config
+from chpf.tracking.methods import method_names
 from chpf.tracking.run_dataset import MethodRun, run_dataset
 from chpf.tracking.run_record import SETTINGS_FILE, clear_outputs, track_settings
 from chpf.tracking.runlog import NETWORK_STAGES
@@ -36,14 +39,14 @@ from chpf.tracking.tracker import Tracker
 
 
 def parse_methods(text: str) -> list[str]:
-    """'all' -> the paper's methods; else a comma-separated list of METHODS."""
+    """'all' -> the paper's methods; else a comma-separated list of registered methods."""
     if text == "all":
-        return list(PAPER_METHODS)
+        return list(method_names(paper_only=True))
     methods = [m.strip() for m in text.split(",") if m.strip()]
-    bad = [m for m in methods if m not in METHODS]
+    bad = [m for m in methods if m not in method_names()]
     if bad or not methods:
         raise ConfigError(
-            f"--method: unknown {bad or text!r} (choose from {', '.join(METHODS)}, all)"
+            f"--method: unknown {bad or text!r} (choose from {', '.join(method_names())}, all)"
         )
     return list(dict.fromkeys(methods))
 
@@ -78,7 +81,16 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="replace the outputs in --out made with other settings (default: refuse)",
     )
-    p.add_argument("--n-particles", type=int, default=None, help="particles (default 50)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override one tracking option, e.g. srl.beta=0.5 (repeatable)",
+    )
+    p.add_argument(
+        "--n-particles", type=int, default=None, help="particles (filter.n_particles, default 50)"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-plot", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -151,7 +163,7 @@ def track(
             f"{bundle.path}: bundle is for object {bundle.obj_info.name!r} (obj_id {obj_id}) but "
             f"{dataset} has obj_ids {sorted(ids)}"
         )
-    cfg = make_config(args.config, n_particles=args.n_particles)
+    cfg = tracking_config(args)
     trackers = {
         m: Tracker(bundle, method=m, modality=args.modality, seed=args.seed, config=cfg)
         for m in methods
@@ -181,7 +193,7 @@ def track(
                 print(f"note: no per-frame errors ({err})")
         print(
             f"tracking obj_id {obj_id} ({bundle.obj_info.name}) in {len(scenes)} scene(s) with "
-            f"{', '.join(methods)} [{args.modality}, N={cfg.n_particles}] -> {out}",
+            f"{', '.join(methods)} [{args.modality}, N={cfg.filter.n_particles}] -> {out}",
             flush=True,
         )
         runs = run_dataset(
@@ -216,10 +228,16 @@ def track(
         return 0
 
 
+def tracking_config(args: argparse.Namespace) -> Any:
+    """The TrackConfig of --config, --set and --n-particles (ConfigError naming the key)."""
+    n = {} if args.n_particles is None else {"filter": {"n_particles": args.n_particles}}
+    return make_config(args.config, args.set, **n)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``chpf-track``; returns the exit code."""
     args = build_parser().parse_args(argv)
-    run_cfg = make_config(args.config)
+    run_cfg = tracking_config(args).runtime
     if args.demo:
         from chpf.tracking.demo import DEMO_METHODS, demo_dataset, shipped_bundle
 

@@ -26,6 +26,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--object", required=True, help="built-in object name or mesh file")
     p.add_argument("--out", required=True, help="bundle folder to write")
     p.add_argument("--config", help="export YAML config (flags below override it)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override one key of the export config, e.g. parity_tol=0.001 (repeatable)",
+    )
     p.add_argument("--codebook-size", type=int, help="K codebook entries (default 20000)")
     p.add_argument("--threads", type=int, help="onnxruntime threads during export (default 2)")
     p.add_argument("--workers", type=int, help="render processes for the codebook (default 2)")
@@ -43,10 +50,14 @@ def main(argv: list[str] | None = None) -> int:
     """Run the export; returns 0 (errors raise ChpfError, printed as one line by ``cli``)."""
     args = build_parser().parse_args(argv)
     # heavy imports (torch) after argument parsing so --help stays fast
+    from chpf.config_schema import load
     from export.config import ExportConfig
     from export.pipeline import export_bundle
 
-    cfg = ExportConfig.from_yaml(args.config) if args.config else ExportConfig()
+    if args.config:
+        cfg = ExportConfig.from_yaml(args.config, args.set)
+    else:
+        cfg = load(ExportConfig, sets=args.set)
     overrides = {
         "codebook_size": args.codebook_size,
         "threads": args.threads,
@@ -54,9 +65,8 @@ def main(argv: list[str] | None = None) -> int:
         "cache_dir": args.cache_dir,
         "unit": args.unit,
     }
-    d = cfg.to_dict()
-    d.update({k: v for k, v in overrides.items() if v is not None})
-    cfg = ExportConfig.from_dict(d, "command line")
+    flags = {k: v for k, v in overrides.items() if v is not None}
+    cfg = load(ExportConfig, data=flags, base=cfg, where="command line")
     t0 = time.perf_counter()
     with lock_output_path(args.out, "chpf-export"):
         res = export_bundle(

@@ -1,22 +1,20 @@
-"""Export settings (``configs/export.yaml`` or command-line flags)."""
+"""Export settings (``configs/export_default.yaml``, ``--set key=value`` or command-line flags)."""
 
 from __future__ import annotations
 
-import dataclasses
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-import yaml
-
+from chpf.config_schema import Section, load, read_yaml, setting, to_dict
 from chpf.errors import ConfigError
 from export.codebook import DEFAULT_CODEBOOK_SIZE, DEFAULT_DEPTH_FACTOR, EMBED_BATCH
 from export.onnx_export import PARITY_TOL
 
 
 @dataclass
-class ExportConfig:
+class ExportConfig(Section):
     """What ``chpf-export`` builds.
 
     codebook_size: K, entries of the uniform SO(3) codebook grid.
@@ -30,66 +28,34 @@ class ExportConfig:
     unit: unit of a mesh file given as --object ("m" or "mm").
     """
 
-    codebook_size: int = DEFAULT_CODEBOOK_SIZE
-    depth_factor: int = DEFAULT_DEPTH_FACTOR
-    embed_batch: int = EMBED_BATCH
-    parity_samples: int = 64
-    parity_tol: float = PARITY_TOL
-    threads: int = 2
-    workers: int = 2
+    codebook_size: int = setting(DEFAULT_CODEBOOK_SIZE, ge=1)
+    depth_factor: int = setting(DEFAULT_DEPTH_FACTOR, ge=1)
+    embed_batch: int = setting(EMBED_BATCH, ge=1)
+    parity_samples: int = setting(64, ge=2)
+    parity_tol: float = setting(PARITY_TOL, gt=0.0)
+    threads: int = setting(2, ge=1)
+    workers: int = setting(2, ge=1)
     cache_dir: str | None = None
-    unit: str = "m"
-
-    def __post_init__(self) -> None:
-        self.validate()
-
-    def validate(self, where: str = "export config") -> None:
-        """ConfigError on out-of-range values."""
-        if int(self.codebook_size) < 1:
-            raise ConfigError(f"{where}: codebook_size must be >= 1, got {self.codebook_size}")
-        if int(self.depth_factor) < 1:
-            raise ConfigError(f"{where}: depth_factor must be >= 1, got {self.depth_factor}")
-        if int(self.embed_batch) < 1 or int(self.parity_samples) < 2:
-            raise ConfigError(f"{where}: embed_batch must be >= 1 and parity_samples >= 2")
-        if not float(self.parity_tol) > 0:
-            raise ConfigError(f"{where}: parity_tol must be > 0, got {self.parity_tol}")
-        if int(self.threads) < 1 or int(self.workers) < 1:
-            raise ConfigError(
-                f"{where}: threads and workers must be >= 1, got {self.threads}, {self.workers}"
-            )
-        if self.unit not in ("m", "mm"):
-            raise ConfigError(f"{where}: unit must be 'm' or 'mm', got {self.unit!r}")
+    unit: Literal["m", "mm"] = "m"
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "export config") -> ExportConfig:
-        """From a dict; ConfigError on unknown keys or bad values."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"{where}: unknown keys {unknown} (known: {sorted(names)})")
-        cfg = cls.__new__(cls)
-        for f in dataclasses.fields(cls):
-            setattr(cfg, f.name, d.get(f.name, f.default))
-        try:
-            cfg.validate(where)
-        except (TypeError, ValueError) as err:
-            raise ConfigError(f"{where}: bad value ({err})") from None
-        return cfg
+        """From a dict; ConfigError (one line naming ``where`` and the key) on unknown keys or
+        bad values."""
+        return load(cls, data=d, where=where)
 
     @classmethod
-    def from_yaml(cls, path: str | os.PathLike) -> ExportConfig:
-        """From a YAML mapping (an optional top-level ``export:`` key is unwrapped)."""
-        path = Path(path)
-        try:
-            data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
-        except (OSError, yaml.YAMLError) as err:
-            raise ConfigError(f"{path}: cannot read export config ({err})") from None
+    def from_yaml(cls, path: str | os.PathLike, sets: Iterable[str] = ()) -> ExportConfig:
+        """From a YAML mapping (an optional top-level ``export:`` key is unwrapped), then
+        ``sets`` ("key=value")."""
+        data = read_yaml(path) or {}
         if isinstance(data, dict) and set(data) == {"export"}:
             data = data["export"] or {}
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: export config must be a mapping")
-        return cls.from_dict(data, str(path))
+        cfg = load(cls, data=data, where=str(path))
+        return load(cls, sets=sets, base=cfg)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (recorded in the manifest)."""
-        return dataclasses.asdict(self)
+        return to_dict(self)

@@ -21,7 +21,8 @@ import numpy as np
 
 from chpf.bundle import Bundle
 from chpf.geometry import axis_angle_to_matrix
-from chpf.tracking.config import METHODS, make_config
+from chpf.tracking.config import make_config
+from chpf.tracking.methods import method_names
 from chpf.tracking.runlog import NETWORK_STAGES
 from chpf.tracking.tracker import Tracker
 
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--n-particles", type=int, default=50)
     p.add_argument("--frames", type=int, default=60, help="timed frames per method")
     p.add_argument("--warmup", type=int, default=5)
-    p.add_argument("--methods", default=",".join(m for m in METHODS if m not in ("fixed", "none")))
+    p.add_argument("--methods", default=",".join(method_names(paper_only=True)))
     p.add_argument("--modality", default="rgb", choices=("rgb", "rgbd"))
     p.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
     p.add_argument("--spin", action="store_true", help="let onnxruntime threads busy-wait")
@@ -126,7 +127,9 @@ def main(argv: list[str] | None = None) -> int:
 
         args.bundle = shipped_bundle()
     bundle = Bundle.load(args.bundle, threads=args.threads, spin=args.spin)
-    cfg = make_config(args.config, n_particles=args.n_particles, threads=args.threads)
+    cfg = make_config(
+        args.config, filter={"n_particles": args.n_particles}, runtime={"threads": args.threads}
+    )
     frames = bench_frames(bundle)
     rows = {}
     for m in [s.strip() for s in args.methods.split(",") if s.strip()]:

@@ -1,27 +1,30 @@
-"""Tracking options: one flat dataclass, loadable from YAML (configs/track_*.yaml).
+"""Tracking options: nested sections loadable from YAML (configs/track_*.yaml) and ``--set``.
 
-Unknown keys and out-of-range values raise ConfigError naming the key (and the file).
+``TrackConfig`` has the core sections (filter, motion, candidates, likelihood, runtime) and one
+section per registered method with options (chpf.tracking.methods), e.g. ``srl: {beta: 0.6}``.
+Unknown keys and out-of-range values raise ConfigError naming the key and the file; a key of
+the former flat form names its new place.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+import typing
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-import yaml
-
+from chpf.config_schema import Invalid, Section, load, read_yaml, setting
 from chpf.errors import ConfigError
+from chpf.tracking.methods import METHODS
+from chpf.tracking.strategies import C_MODES
 
-METHODS = ("chpf", "srl", "augmcl", "annealing", "e2e", "poserbpf", "poserbpf++", "fixed", "none")
-"""Tracking methods: the 6D filters (one reinvigoration strategy each) and the RBPFs."""
-PAPER_METHODS = ("chpf", "srl", "augmcl", "annealing", "e2e", "poserbpf", "poserbpf++")
-"""The methods compared in the paper (``--method all``)."""
+__all__ = ["C_MODES", "L_FROM_COS", "MODALITIES", "TrackConfig", "make_config"]
+
 MODALITIES = ("rgb", "rgbd")
-C_MODES = ("learned", "depth", "both", "none")
-"""Where C comes from: the learned classifier, C_depth, their mean, or nowhere (C = None)."""
-L_FROM_COS = ("clip", "affine")
+LFromCos = Literal["clip", "affine"]
+L_FROM_COS: tuple[str, ...] = typing.get_args(LFromCos)
 """How the cosine c in [-1, 1] becomes the unnormalised likelihood L in [0, 1] that SRL, Aug.
 MCL and CH-PF sum: "clip" L = max(c, 0); "affine" L = (1 + c) / 2. With the trained encoders,
 whose embeddings of unrelated views are near orthogonal (c ~ 0), "clip" gives the candidates
@@ -30,165 +33,140 @@ correct belief; "affine" keeps the baseline that an Augmented Autoencoder's cosi
 
 
 @dataclass
-class TrackConfig:
-    """All tracking options (lengths in metres, angles in radians)."""
+class FilterConfig(Section):
+    """n_particles: particles of every method."""
 
-    n_particles: int = 50
-    # motion model: random walk per frame
-    sigma_t: float = 0.01
-    sigma_r: float = 0.08
-    # candidate distribution phi_cand
+    n_particles: int = setting(50, ge=1)
+
+
+@dataclass
+class MotionConfig(Section):
+    """Random walk per frame: translation std sigma_t (m), rotation std sigma_r (rad)."""
+
+    sigma_t: float = setting(0.01, ge=0.0)
+    sigma_r: float = setting(0.08, ge=0.0)
+
+
+@dataclass
+class CandidatesConfig(Section):
+    """The candidate distribution phi_cand (see configs/track_default.yaml for each key)."""
+
     z_range: tuple[float, float] = (0.3, 2.0)  # RGB z range when the box scale is not used
     z_from_box: bool = True  # RGB: z range from the box size and the object's extent
     z_box_factors: tuple[float, float] = (0.8, 1.25)
-    box_uv_fraction: float = 1.0  # (u, v) uniform in this central fraction of the box's sides
-    candidate_rotations: str = "uniform"  # uniform | codebook (matching the box's crop)
-    candidate_temperature: float = 0.05  # codebook: p(entry) ~ exp((cos - max cos) / this)
-    candidate_uniform_share: float = 0.25  # codebook: share still drawn uniformly
+    box_uv_fraction: float = setting(1.0, gt=0.0, le=1.0)  # (u, v) in this central fraction
+    rotations: Literal["uniform", "codebook"] = "uniform"  # codebook: entries matching the box
+    temperature: float = setting(0.05, gt=0.0)  # codebook: p(entry) ~ exp((cos - max) / this)
+    uniform_share: float = setting(0.25, ge=0.0, le=1.0)  # codebook: share drawn uniformly
     depth_offset: tuple[float, float] | None = None  # RGB-D: z = measured + U(a, b); None =
     # (0, diameter / 2)
     depth_window: int = 3
-    # likelihoods
-    sigma: float = 0.3  # AE cosine -> importance weight width
-    l_from_cos: str = "clip"  # unnormalised likelihood L from the cosine: clip | affine
-    c_mode: str = "learned"  # learned | depth | both | none
-    depth_margin: float = 0.03
-    c_depth_margin: float = 0.02
-    depth_no_data: float = 0.5
-    # strategies
-    srl_beta: float = 0.6
-    augmcl_a_slow: float = 0.001
-    augmcl_a_fast: float = 0.1
-    anneal_betas: tuple[float, ...] = (0.2, 0.5, 1.0)
-    anneal_decay: float = 0.5
-    e2e_rate: float = 0.2
-    e2e_sigma_t: tuple[float, float, float] = (0.01, 0.01, 0.03)
-    e2e_sigma_r: float = 0.15
-    fixed_rate: float = 0.1
-    # Rao-Blackwellised filters
-    rbpf_sigma: float = 0.1
-    rbpf_neighbours: int = 12
-    rbpf_rotation_sigma: float | None = None  # None = the codebook grid spacing
-    rbpf_reset_threshold: float = 0.4
-    rbpf_plus_fraction: float = 0.5
-    rbpf_rotation_estimate: str = "argmax"
-    # runtime
-    threads: int = 2  # onnxruntime intra-op threads
-    spin: bool = False  # onnxruntime idle threads busy-wait (True starves the filter's numpy)
-    library_threads: int = 1  # OpenCV and BLAS threads (their idle workers slow onnxruntime)
-    crop_size: int | None = None  # expected bundle crop size (None = any)
 
-    def check(self, where: str = "tracking config") -> TrackConfig:
-        """Validate ranges; returns self. ConfigError names the key."""
-
-        def bad(key: str, why: str) -> ConfigError:
-            return ConfigError(f"{where}: {key} {why} (got {getattr(self, key)!r})")
-
-        lengths = {"z_range": 2, "z_box_factors": 2, "depth_offset": 2, "e2e_sigma_t": 3}
-        for key, n in lengths.items():
-            value = getattr(self, key)
-            if value is not None and len(value) != n:
-                raise bad(key, f"must have {n} values")
-        if not self.anneal_betas:
-            raise bad("anneal_betas", "must not be empty")
-        if self.n_particles < 1:
-            raise bad("n_particles", "must be >= 1")
-        for key in ("sigma_t", "sigma_r", "depth_margin", "c_depth_margin", "e2e_sigma_r"):
-            if getattr(self, key) < 0:
-                raise bad(key, "must be >= 0")
-        for key in ("sigma", "rbpf_sigma", "srl_beta", "candidate_temperature"):
-            if getattr(self, key) <= 0:
-                raise bad(key, "must be > 0")
+    def check(self) -> None:
         lo, hi = self.z_range
         if not 0 < lo < hi:
-            raise bad("z_range", "must be 0 < min < max")
+            raise Invalid("z_range", f"must be 0 < min < max, got {list(self.z_range)}")
         if not 0 < self.z_box_factors[0] <= self.z_box_factors[1]:
-            raise bad("z_box_factors", "must be 0 < min <= max")
-        if not 0.0 < self.box_uv_fraction <= 1.0:
-            raise bad("box_uv_fraction", "must be in (0, 1]")
-        if self.candidate_rotations not in ("uniform", "codebook"):
-            raise bad("candidate_rotations", "must be uniform or codebook")
-        for key in (
-            "e2e_rate",
-            "fixed_rate",
-            "rbpf_plus_fraction",
-            "depth_no_data",
-            "candidate_uniform_share",
-        ):
-            if not 0.0 <= getattr(self, key) <= 1.0:
-                raise bad(key, "must be in [0, 1]")
-        if self.c_mode not in C_MODES:
-            raise bad("c_mode", f"must be one of {', '.join(C_MODES)}")
-        if self.l_from_cos not in L_FROM_COS:
-            raise bad("l_from_cos", f"must be one of {', '.join(L_FROM_COS)}")
-        if self.rbpf_rotation_estimate not in ("argmax", "mean"):
-            raise bad("rbpf_rotation_estimate", "must be argmax or mean")
-        if self.threads < 1:
-            raise bad("threads", "must be >= 1")
-        if self.library_threads < 1:
-            raise bad("library_threads", "must be >= 1")
-        return self
+            raise Invalid("z_box_factors", f"must be 0 < min <= max, got {self.z_box_factors}")
 
 
-_FIELDS = {f.name: f for f in dataclasses.fields(TrackConfig)}
+@dataclass
+class LikelihoodConfig(Section):
+    """Likelihoods: sigma (AE cosine -> importance weight width), l_from_cos (L_FROM_COS),
+    depth margins (m) and the scores of a hypothesis without depth data."""
+
+    sigma: float = setting(0.3, gt=0.0)
+    l_from_cos: LFromCos = "clip"
+    depth_margin: float = setting(0.03, ge=0.0)
+    c_depth_margin: float = setting(0.02, ge=0.0)
+    depth_no_data: float = setting(0.5, ge=0.0, le=1.0)
 
 
-def _coerce(key: str, value: Any, where: str) -> Any:
-    """Value of option ``key`` converted to its annotated type; ConfigError if impossible."""
-    ann = str(_FIELDS[key].type)
-    try:
-        if value is None:
-            if "None" not in ann:
-                raise ValueError
-            return None
-        if ann.startswith("tuple"):
-            return tuple(float(v) for v in value)
-        if ann == "bool" or isinstance(value, bool):
-            if ann != "bool" or not isinstance(value, bool):
-                raise ValueError
-            return value
-        if ann.startswith("int"):
-            if int(value) != value:
-                raise ValueError
-            return int(value)
-        if ann.startswith("float"):
-            return float(value)
-        if not isinstance(value, str):
-            raise ValueError
-        return value
-    except (TypeError, ValueError):
-        raise ConfigError(f"{where}: {key} has an invalid value {value!r}") from None
+@dataclass
+class RuntimeConfig(Section):
+    """threads: onnxruntime intra-op threads; spin: its idle threads busy-wait (starves the
+    filter's numpy); library_threads: OpenCV and BLAS threads; crop_size: expected bundle
+    crop size (None = any)."""
+
+    threads: int = setting(2, ge=1)
+    spin: bool = False
+    library_threads: int = setting(1, ge=1)
+    crop_size: int | None = None
+
+
+@dataclass
+class TrackCore(Section):
+    """The sections every method uses."""
+
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    candidates: CandidatesConfig = field(default_factory=CandidatesConfig)
+    likelihood: LikelihoodConfig = field(default_factory=LikelihoodConfig)
+    runtime: RuntimeConfig = field(default_factory=RuntimeConfig)
+
+
+def _method_sections() -> list[tuple[str, type, Any]]:
+    """One (section, options class, field) per registered method with options."""
+    seen: dict[str, type] = {}
+    for m in METHODS.values():
+        if m.options is not None:
+            seen.setdefault(m.section, m.options)
+    return [(name, cls, field(default_factory=cls)) for name, cls in seen.items()]
+
+
+TrackConfig = dataclasses.make_dataclass(
+    "TrackConfig",
+    _method_sections(),
+    bases=(TrackCore,),
+    namespace={"__doc__": "All tracking options: core sections + one per method with options."},
+)
+TrackConfig.__module__ = __name__
+
+
+def _flat_keys() -> dict[str, str]:
+    """Keys of the former flat TrackConfig (e.g. srl_beta) -> their new dotted names."""
+    prefixes = {"candidates": "candidate_", "annealing": "anneal_", "poserbpf": "rbpf_"}
+    flat: dict[str, str] = {}
+    for name, options in typing.get_type_hints(TrackConfig).items():
+        core = name in TrackCore.__annotations__ or name == "chpf"
+        prefix = prefixes.get(name, "" if core else f"{name}_")
+        for g in dataclasses.fields(options):
+            flat.setdefault(prefix + g.name, f"{name}.{g.name}")
+            if name == "candidates":
+                flat.setdefault(g.name, f"{name}.{g.name}")
+    return flat
+
+
+_FLAT_KEYS = _flat_keys()
+
+
+def _refuse_flat_keys(data: Any, where: str) -> None:
+    """ConfigError with the new name when ``data`` holds a key of the former flat form."""
+    if not isinstance(data, Mapping):
+        return
+    for key, value in data.items():
+        if not isinstance(value, Mapping) and key in _FLAT_KEYS:
+            new = _FLAT_KEYS[key]
+            raise ConfigError(f"{where}: {key} is now {new} (a key of section {new.split('.')[0]})")
 
 
 def make_config(
-    source: str | Path | dict[str, Any] | TrackConfig | None = None, **overrides: Any
-) -> TrackConfig:
-    """TrackConfig from a YAML file, a dict or a TrackConfig, then keyword overrides; checked."""
-    where = "tracking config"
-    values: dict[str, Any] = {}
+    source: str | Path | Mapping[str, Any] | Any | None = None,
+    sets: Iterable[str] = (),
+    **sections: Mapping[str, Any],
+) -> Any:
+    """TrackConfig from a YAML file, a nested dict or a TrackConfig, then ``sections``
+    (``srl={"beta": 0.5}``) and ``sets`` (``"srl.beta=0.5"``); checked (ConfigError)."""
+    base, data, where = None, None, "tracking config"
     if isinstance(source, TrackConfig):
-        values = {k: getattr(source, k) for k in _FIELDS}
+        base = source
     elif isinstance(source, (str, Path)):
-        path = Path(source)
-        where = str(path)
-        try:
-            loaded = yaml.safe_load(path.read_text(encoding="utf-8"))
-        except OSError as err:
-            raise ConfigError(f"{path}: cannot read config ({err.strerror})") from None
-        except yaml.YAMLError as err:
-            raise ConfigError(f"{path}: invalid YAML ({str(err).splitlines()[0]})") from None
-        if loaded is None:
-            loaded = {}
-        if not isinstance(loaded, dict):
-            raise ConfigError(f"{path}: expected a mapping of options")
-        values = dict(loaded)
-    elif isinstance(source, dict):
-        values = dict(source)
+        data, where = read_yaml(source), str(source)
+    elif isinstance(source, Mapping):
+        data = source
     elif source is not None:
         raise ConfigError(f"tracking config: unsupported source {type(source).__name__}")
-    values.update({k: v for k, v in overrides.items() if v is not None})
-    unknown = sorted(set(values) - set(_FIELDS))
-    if unknown:
-        raise ConfigError(f"{where}: unknown option(s) {unknown}")
-    cfg = TrackConfig(**{k: _coerce(k, v, where) for k, v in values.items()})
-    return cfg.check(where)
+    _refuse_flat_keys(data, where)
+    _refuse_flat_keys(sections, "options")
+    cfg = load(TrackConfig, data=data, base=base, where=where)
+    return load(TrackConfig, data=sections, sets=sets, base=cfg, where="options")

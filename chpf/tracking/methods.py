@@ -1,14 +1,22 @@
-"""Build the filter of a named method from a likelihood and a TrackConfig."""
+"""The registry of tracking methods: one entry per method (name, class, options, description).
+
+That entry is all there is to a method: ``chpf-track --method`` and ``all``,
+``Tracker(method=...)``, the ``TrackConfig`` section of its options (``srl: {beta: 0.6}``) and
+the README's table of methods all come from ``METHODS``. Adding a method = its class (a
+Strategy of the 6D core, or a filter of its own) with its options dataclass + one ``register``.
+"""
 
 from __future__ import annotations
 
-from typing import Protocol
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import numpy as np
 
+from chpf.config_schema import Section, setting
 from chpf.errors import ConfigError
 from chpf.tracking.candidates import CandidateSampler
-from chpf.tracking.config import METHODS, TrackConfig
 from chpf.tracking.motion import RandomWalk
 from chpf.tracking.particle_filter import ParticleFilter
 from chpf.tracking.rbpf import RaoBlackwellisedFilter
@@ -17,12 +25,21 @@ from chpf.tracking.strategies import (
     E2E,
     SRL,
     Annealing,
+    AnnealingConfig,
     AugMCL,
+    AugMCLConfig,
+    CHPFConfig,
+    E2EConfig,
+    FixedConfig,
     FixedRate,
     NoReinvigoration,
+    SRLConfig,
     Strategy,
 )
 from chpf.tracking.types import Frame, TrackResult
+
+if TYPE_CHECKING:
+    from chpf.tracking.config import TrackConfig
 
 
 class Filter(Protocol):
@@ -33,24 +50,181 @@ class Filter(Protocol):
     def reset(self) -> None: ...
 
 
-def make_strategy(method: str, cfg: TrackConfig) -> Strategy:
-    """The reinvigoration strategy of a 6D-filter method."""
-    if method == "chpf":
-        return CHPF()
-    if method == "srl":
-        return SRL(cfg.srl_beta)
-    if method == "augmcl":
-        return AugMCL(cfg.augmcl_a_slow, cfg.augmcl_a_fast)
-    if method == "annealing":
-        return Annealing(tuple(cfg.anneal_betas), cfg.anneal_decay)
-    if method == "e2e":
-        s = cfg.e2e_sigma_t
-        return E2E(cfg.e2e_rate, (s[0], s[1], s[2]), cfg.e2e_sigma_r)
-    if method == "fixed":
-        return FixedRate(cfg.fixed_rate)
-    if method == "none":
-        return NoReinvigoration()
-    raise ConfigError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
+Build = Callable[[object, Any, int, RandomWalk, CandidateSampler, np.random.Generator], Filter]
+"""(likelihood, options, n_particles, motion, candidates, rng) -> the method's filter."""
+
+
+@dataclass(frozen=True)
+class Method:
+    """One tracking method.
+
+    cls: its Strategy (run by the 6D ParticleFilter) or its own filter class.
+    options: its options dataclass (None: it has none), the TrackConfig section ``section``.
+    build: how a filter class that is not a Strategy is made (None for strategies).
+    paper: one of the methods compared in the paper (``--method all``).
+    """
+
+    name: str
+    cls: type
+    options: type[Section] | None
+    description: str
+    paper: bool = True
+    section: str = ""
+    build: Build | None = None
+
+    def make(
+        self,
+        likelihood: object,
+        options: Any,
+        n_particles: int,
+        motion: RandomWalk,
+        candidates: CandidateSampler,
+        rng: np.random.Generator,
+    ) -> Filter:
+        """This method's filter around ``likelihood`` with ``options`` (its config section)."""
+        if self.build is not None:
+            return self.build(likelihood, options, n_particles, motion, candidates, rng)
+        strategy: Strategy = self.cls(options) if self.options else self.cls()
+        return ParticleFilter(
+            likelihood,  # type: ignore[arg-type]
+            strategy,
+            n_particles=n_particles,
+            motion=motion,
+            candidates=candidates,
+            rng=rng,
+        )
+
+
+METHODS: dict[str, Method] = {}
+"""Every registered method by name, in registration order."""
+
+
+def register(method: Method) -> Method:
+    """Add ``method`` to METHODS (its section defaults to its name)."""
+    if method.name in METHODS:
+        raise ValueError(f"method {method.name!r} is registered twice")
+    if method.options is not None and not method.section:
+        object.__setattr__(method, "section", method.name)
+    METHODS[method.name] = method
+    return method
+
+
+def method_names(paper_only: bool = False) -> tuple[str, ...]:
+    """The registered method names (the paper's only, for ``--method all``)."""
+    return tuple(name for name, m in METHODS.items() if m.paper or not paper_only)
+
+
+def get_method(name: str) -> Method:
+    """The registered method ``name``; ConfigError naming the choices otherwise."""
+    if name not in METHODS:
+        raise ConfigError(f"unknown method {name!r} (choose from {', '.join(METHODS)})")
+    return METHODS[name]
+
+
+@dataclass
+class PoseRBPFConfig(Section):
+    """PoseRBPF and PoseRBPF++ (their section is ``poserbpf``).
+
+    sigma: cosine -> rotation likelihood width; neighbours: grid neighbours of the rotation
+    prior's diffusion; rotation_sigma: its width in radians (None = the grid spacing);
+    reset_threshold: best cosine below which all particles are redrawn; plus_fraction:
+    PoseRBPF++'s share reinvigorated every frame; rotation_estimate: argmax | mean.
+    """
+
+    sigma: float = setting(0.1, gt=0.0)
+    neighbours: int = 12
+    rotation_sigma: float | None = None
+    reset_threshold: float = 0.4
+    plus_fraction: float = setting(0.5, ge=0.0, le=1.0)
+    rotation_estimate: Literal["argmax", "mean"] = "argmax"
+
+
+def _poserbpf(plus: bool) -> Build:
+    """Build PoseRBPF (plus: PoseRBPF++, reinvigorating plus_fraction every frame)."""
+
+    def build(
+        likelihood: object,
+        options: PoseRBPFConfig,
+        n_particles: int,
+        motion: RandomWalk,
+        candidates: CandidateSampler,
+        rng: np.random.Generator,
+    ) -> Filter:
+        return RaoBlackwellisedFilter(
+            likelihood,  # type: ignore[arg-type]
+            n_particles=n_particles,
+            motion=motion,
+            candidates=candidates,
+            rng=rng,
+            sigma=options.sigma,
+            rotation_sigma=options.rotation_sigma,
+            n_neighbours=options.neighbours,
+            reset_threshold=options.reset_threshold,
+            reinvigorate=options.plus_fraction if plus else 0.0,
+            rotation_estimate=options.rotation_estimate,
+            name="poserbpf++" if plus else "poserbpf",
+        )
+
+    return build
+
+
+register(
+    Method("chpf", CHPF, CHPFConfig, "Counter-Hypothetical PF: alpha = sum C / (sum C + sum L)")
+)
+register(
+    Method(
+        "srl",
+        SRL,
+        SRLConfig,
+        "Sensor Resetting Localisation: alpha = clip(1 - mean L / beta, 0, 1)",
+    )
+)
+register(
+    Method(
+        "augmcl",
+        AugMCL,
+        AugMCLConfig,
+        "Augmented MCL: alpha = max(0, 1 - w_fast / w_slow) from two averages of mean L",
+    )
+)
+register(
+    Method(
+        "annealing",
+        Annealing,
+        AnnealingConfig,
+        "annealed PF: M layers per frame weighing with w^beta_m, no reinvigoration",
+    )
+)
+register(
+    Method(
+        "e2e",
+        E2E,
+        E2EConfig,
+        "MCL + E2E: a fixed fraction drawn around the autoencoder's single-frame estimate",
+    )
+)
+register(
+    Method(
+        "poserbpf",
+        RaoBlackwellisedFilter,
+        PoseRBPFConfig,
+        "PoseRBPF: translation particles, each with a distribution over the codebook"
+        " orientations; all redrawn on low similarity",
+        build=_poserbpf(False),
+    )
+)
+register(
+    Method(
+        "poserbpf++",
+        RaoBlackwellisedFilter,
+        PoseRBPFConfig,
+        "PoseRBPF++: PoseRBPF with plus_fraction of the particles reinvigorated every frame",
+        section="poserbpf",
+        build=_poserbpf(True),
+    )
+)
+register(Method("fixed", FixedRate, FixedConfig, "6D PF with a constant alpha = rate", paper=False))
+register(Method("none", NoReinvigoration, None, "plain SIR 6D PF (alpha = 0)", paper=False))
 
 
 def make_filter(
@@ -60,29 +234,13 @@ def make_filter(
     candidates: CandidateSampler,
     rng: np.random.Generator,
 ) -> Filter:
-    """The filter of ``method`` (see config.METHODS) around ``likelihood``."""
-    motion = RandomWalk(cfg.sigma_t, cfg.sigma_r)
-    if method in ("poserbpf", "poserbpf++"):
-        return RaoBlackwellisedFilter(
-            likelihood,  # type: ignore[arg-type]
-            n_particles=cfg.n_particles,
-            motion=motion,
-            candidates=candidates,
-            rng=rng,
-            sigma=cfg.rbpf_sigma,
-            rotation_sigma=cfg.rbpf_rotation_sigma,
-            n_neighbours=cfg.rbpf_neighbours,
-            reset_threshold=cfg.rbpf_reset_threshold,
-            reinvigorate=cfg.rbpf_plus_fraction if method == "poserbpf++" else 0.0,
-            rotation_estimate=cfg.rbpf_rotation_estimate,
-            name=method,
-        )
-    strategy = make_strategy(method, cfg)
-    return ParticleFilter(
-        likelihood,  # type: ignore[arg-type]
-        strategy,
-        n_particles=cfg.n_particles,
-        motion=motion,
-        candidates=candidates,
-        rng=rng,
+    """The filter of the registered ``method`` around ``likelihood``, with cfg's options."""
+    spec = get_method(method)
+    return spec.make(
+        likelihood,
+        getattr(cfg, spec.section) if spec.options else None,
+        cfg.filter.n_particles,
+        RandomWalk(cfg.motion.sigma_t, cfg.motion.sigma_r),
+        candidates,
+        rng,
     )

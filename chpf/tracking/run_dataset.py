@@ -123,7 +123,7 @@ def run_dataset(
                             e_add = add(points, r.R, r.t, gt.R, gt.t)
                             e_adds = adds(points, r.R, r.t, gt.R, gt.t)
                         if r.ok and key not in appenders[m].done_keys():
-                            score = r.sum_L / trackers[m].config.n_particles
+                            score = r.sum_L / trackers[m].config.filter.n_particles
                             appenders[m].append(
                                 ResultRow(
                                     sid,

@@ -7,14 +7,15 @@ settings is refused unless ``--overwrite``, which first removes every output of 
 
 from __future__ import annotations
 
-import dataclasses
 import shutil
 from pathlib import Path
 from typing import Any
 
 from chpf.bundle import MANIFEST, Bundle
+from chpf.config_schema import to_dict
 from chpf.hashing import sha256_file
-from chpf.tracking.config import METHODS, TrackConfig
+from chpf.tracking.config import TrackConfig
+from chpf.tracking.methods import method_names
 from chpf.tracking.run_dataset import method_tag
 
 SETTINGS_FILE = "track_settings.json"
@@ -50,14 +51,14 @@ def track_settings(
         "methods": list(methods),
         "modality": modality,
         "seed": int(seed),
-        "config": dataclasses.asdict(config),
+        "config": to_dict(config),
     }
 
 
 def clear_outputs(out: Path) -> None:
     """Remove every chpf-track output in ``out`` (result CSVs and logs of any method, plots,
     reports); other files stay."""
-    for m in METHODS:
+    for m in method_names():
         tag = method_tag(m)
         for p in [*out.glob(f"{tag}_*.csv"), out / f"log_{tag}.csv"]:
             p.unlink(missing_ok=True)

@@ -7,14 +7,21 @@ special filter class: ``betas`` (annealing layers, one weighing per entry; the d
 is one ordinary weighing) with ``layer_decay`` (diffusion scale factor per layer), and
 ``propose(frame, n, rng, likelihood)`` (where reinvigorated particles come from; None means
 phi_cand).
+
+A strategy with options takes its config dataclass (defined next to it; the defaults live
+there and nowhere else); chpf.tracking.methods registers each one under its method name.
 """
 
 from __future__ import annotations
 
 import itertools
+import typing
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
+from chpf.config_schema import Invalid, Section, setting
 from chpf.errors import ConfigError
 from chpf.geometry import perturb_rotations
 from chpf.tracking.types import Frame, Scores, SingleFrameEstimator
@@ -52,18 +59,36 @@ class NoReinvigoration(Strategy):
     name = "none"
 
 
+@dataclass
+class FixedConfig(Section):
+    """Method "fixed": rate, the constant alpha."""
+
+    rate: float = setting(0.1, ge=0.0, le=1.0)
+
+
 class FixedRate(Strategy):
     """alpha = a constant fraction."""
 
     name = "fixed"
 
-    def __init__(self, rate: float = 0.1) -> None:
-        if not 0.0 <= rate <= 1.0:
-            raise ConfigError(f"fixed reinvigoration rate must be in [0, 1], got {rate}")
-        self.rate = float(rate)
+    def __init__(self, config: FixedConfig | None = None) -> None:
+        self.rate = (config or FixedConfig()).rate
 
     def alpha(self, scores: Scores) -> float:
         return self.rate
+
+
+CMode = Literal["learned", "depth", "both", "none"]
+C_MODES: tuple[str, ...] = typing.get_args(CMode)
+"""Where C comes from: the learned classifier, C_depth, their mean, or nowhere (C = None)."""
+
+
+@dataclass
+class CHPFConfig(Section):
+    """CH-PF: c_mode, where the Counter-Hypothetical likelihood C comes from (C_MODES; depth
+    and both need RGB-D)."""
+
+    c_mode: CMode = "learned"
 
 
 class CHPF(Strategy):
@@ -74,6 +99,9 @@ class CHPF(Strategy):
 
     name = "chpf"
 
+    def __init__(self, config: CHPFConfig | None = None) -> None:
+        self.config = config or CHPFConfig()
+
     def alpha(self, scores: Scores) -> float:
         if scores.C is None:
             raise ConfigError("CH-PF needs a Counter-Hypothetical likelihood C (none was given)")
@@ -81,6 +109,13 @@ class CHPF(Strategy):
         sum_l = float(_finite(scores.L).clip(min=0.0).sum())
         total = sum_c + sum_l
         return 1.0 if total <= 0.0 else sum_c / total
+
+
+@dataclass
+class SRLConfig(Section):
+    """SRL: beta, the mean unnormalised likelihood L regarded as "good"."""
+
+    beta: float = setting(0.6, gt=0.0)
 
 
 class SRL(Strategy):
@@ -91,14 +126,26 @@ class SRL(Strategy):
 
     name = "srl"
 
-    def __init__(self, beta: float = 0.6) -> None:
-        if beta <= 0.0:
-            raise ConfigError(f"SRL beta must be > 0, got {beta}")
-        self.beta = float(beta)
+    def __init__(self, config: SRLConfig | None = None) -> None:
+        self.beta = (config or SRLConfig()).beta
 
     def alpha(self, scores: Scores) -> float:
         mean_l = float(_finite(scores.L).mean()) if np.size(scores.L) else 0.0
         return float(np.clip(1.0 - mean_l / self.beta, 0.0, 1.0))
+
+
+@dataclass
+class AugMCLConfig(Section):
+    """Aug. MCL: the smoothing rates of the slow and fast likelihood averages."""
+
+    a_slow: float = 0.001
+    a_fast: float = 0.1
+
+    def check(self) -> None:
+        if not 0.0 < self.a_slow < self.a_fast <= 1.0:
+            raise Invalid(
+                "a_slow", f"needs 0 < a_slow < a_fast <= 1, got {self.a_slow}, {self.a_fast}"
+            )
 
 
 class AugMCL(Strategy):
@@ -110,11 +157,10 @@ class AugMCL(Strategy):
 
     name = "augmcl"
 
-    def __init__(self, a_slow: float = 0.001, a_fast: float = 0.1) -> None:
-        if not 0.0 < a_slow < a_fast <= 1.0:
-            raise ConfigError(f"Aug. MCL needs 0 < a_slow < a_fast <= 1, got {a_slow}, {a_fast}")
-        self.a_slow = float(a_slow)
-        self.a_fast = float(a_fast)
+    def __init__(self, config: AugMCLConfig | None = None) -> None:
+        config = config or AugMCLConfig()
+        self.a_slow = config.a_slow
+        self.a_fast = config.a_fast
         self.w_slow: float | None = None
         self.w_fast: float | None = None
 
@@ -134,6 +180,22 @@ class AugMCL(Strategy):
         return float(max(0.0, 1.0 - self.w_fast / self.w_slow))
 
 
+@dataclass
+class AnnealingConfig(Section):
+    """Annealing: betas, the layers' exponents (rising, ending at 1.0); decay, the diffusion
+    scale factor per layer."""
+
+    betas: tuple[float, ...] = (0.2, 0.5, 1.0)
+    decay: float = setting(0.5, gt=0.0, le=1.0)
+
+    def check(self) -> None:
+        betas = self.betas
+        if not betas or betas[-1] != 1.0 or any(b <= 0 for b in betas):
+            raise Invalid("betas", f"must be positive and end at 1.0, got {list(betas)}")
+        if any(b2 < b1 for b1, b2 in itertools.pairwise(betas)):
+            raise Invalid("betas", f"must rise, got {list(betas)}")
+
+
 class Annealing(Strategy):
     """Annealed particle filter (no reinvigoration): M layers per frame; layer m weighs with
     w ** betas[m] (betas rising to 1), resamples, and diffuses with the motion model scaled by
@@ -141,38 +203,33 @@ class Annealing(Strategy):
 
     name = "annealing"
 
-    def __init__(self, betas: tuple[float, ...] = (0.2, 0.5, 1.0), layer_decay: float = 0.5):
-        betas = tuple(float(b) for b in betas)
-        if not betas or betas[-1] != 1.0 or any(b <= 0 for b in betas):
-            raise ConfigError(f"annealing betas must be positive and end at 1.0, got {betas}")
-        if any(b2 < b1 for b1, b2 in itertools.pairwise(betas)):
-            raise ConfigError(f"annealing betas must rise, got {betas}")
-        if not 0.0 < layer_decay <= 1.0:
-            raise ConfigError(f"annealing layer_decay must be in (0, 1], got {layer_decay}")
-        self.betas = betas
-        self.layer_decay = float(layer_decay)
+    def __init__(self, config: AnnealingConfig | None = None) -> None:
+        config = config or AnnealingConfig()
+        self.betas = tuple(float(b) for b in config.betas)
+        self.layer_decay = float(config.decay)
+
+
+@dataclass
+class E2EConfig(Section):
+    """MCL + E2E: rate, the fraction drawn around the single-frame estimate; sigma_t its
+    translation std (x, y, z) metres; sigma_r its rotation std (axis-angle) radians."""
+
+    rate: float = setting(0.2, ge=0.0, le=1.0)
+    sigma_t: tuple[float, float, float] = setting((0.01, 0.01, 0.03), ge=0.0)
+    sigma_r: float = setting(0.15, ge=0.0)
 
 
 class E2E(Strategy):
     """MCL + E2E: a fixed fraction of particles drawn from a Gaussian around a single-frame
-    estimate (the likelihood's ``single_frame_estimate``); phi_cand when it gives none.
-
-    sigma_t: translation std (x, y, z) metres; sigma_r: rotation std (axis-angle) radians.
-    """
+    estimate (the likelihood's ``single_frame_estimate``); phi_cand when it gives none."""
 
     name = "e2e"
 
-    def __init__(
-        self,
-        rate: float = 0.2,
-        sigma_t: tuple[float, float, float] = (0.01, 0.01, 0.03),
-        sigma_r: float = 0.15,
-    ) -> None:
-        if not 0.0 <= rate <= 1.0:
-            raise ConfigError(f"E2E rate must be in [0, 1], got {rate}")
-        self.rate = float(rate)
-        self.sigma_t = np.broadcast_to(np.asarray(sigma_t, dtype=np.float64), (3,)).copy()
-        self.sigma_r = float(sigma_r)
+    def __init__(self, config: E2EConfig | None = None) -> None:
+        config = config or E2EConfig()
+        self.rate = float(config.rate)
+        self.sigma_t = np.asarray(config.sigma_t, dtype=np.float64)
+        self.sigma_r = float(config.sigma_r)
 
     def alpha(self, scores: Scores) -> float:
         return self.rate

@@ -21,8 +21,8 @@ from chpf.errors import BundleError, ConfigError, ImageSizeError
 from chpf.tracking.bundle_likelihood import BundleLikelihood
 from chpf.tracking.candidates import CandidateSampler
 from chpf.tracking.codebook_candidates import CodebookRotations
-from chpf.tracking.config import METHODS, MODALITIES, TrackConfig, make_config
-from chpf.tracking.methods import Filter, make_filter
+from chpf.tracking.config import MODALITIES, TrackConfig, make_config
+from chpf.tracking.methods import Filter, get_method, make_filter
 from chpf.tracking.types import Box, Frame, TrackResult
 
 
@@ -67,8 +67,9 @@ def check_frame(rgb: np.ndarray, depth: np.ndarray | None, K: np.ndarray) -> np.
 class Tracker:
     """Tracks one object with one method; see the module docstring.
 
-    method: one of config.METHODS. modality: "rgb" or "rgbd" (depth used when given).
-    seed: the filter's random generator seed (same seed, same poses).
+    method: a registered method (chpf.tracking.methods.METHODS). modality: "rgb" or "rgbd"
+    (depth used when given). seed: the filter's random generator seed (same seed, same poses).
+    config: a TrackConfig, a nested dict of its sections or a YAML file (default: defaults).
     """
 
     def __init__(
@@ -77,52 +78,52 @@ class Tracker:
         method: str = "chpf",
         modality: str = "rgb",
         seed: int = 0,
-        config: TrackConfig | None = None,
+        config: TrackConfig | dict[str, Any] | str | Path | None = None,
     ) -> None:
-        cfg = config or TrackConfig()
-        if method not in METHODS:
-            raise ConfigError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
+        cfg = config if isinstance(config, TrackConfig) else make_config(config)
+        get_method(method)
         if modality not in MODALITIES:
             raise ConfigError(f"unknown modality {modality!r} (rgb or rgbd)")
-        if cfg.crop_size is not None and cfg.crop_size != bundle.spec.size:
+        crop_size = cfg.runtime.crop_size
+        if crop_size is not None and crop_size != bundle.spec.size:
             raise BundleError(
                 f"{bundle.path}: bundle crop size {bundle.spec.size} differs from the "
-                f"configured crop_size {cfg.crop_size}"
+                f"configured runtime.crop_size {crop_size}"
             )
         rgbd = modality == "rgbd"
-        c_mode = cfg.c_mode if method == "chpf" else "none"  # only CH-PF uses C
+        c_mode = cfg.chpf.c_mode if method == "chpf" else "none"  # only CH-PF uses C
         if c_mode in ("depth", "both") and not rgbd:
-            raise ConfigError(f"c_mode {c_mode!r} needs --modality rgbd")
-        limit_library_threads(cfg.library_threads)
+            raise ConfigError(f"chpf.c_mode {c_mode!r} needs --modality rgbd")
+        limit_library_threads(cfg.runtime.library_threads)
         self.bundle = bundle
         self.method = method
         self.modality = modality
         self.config = cfg
         self.seed: int | Sequence[int] = seed
+        lik = cfg.likelihood
         self.likelihood = BundleLikelihood(
             bundle,
-            sigma=cfg.sigma,
-            l_from_cos=cfg.l_from_cos,
+            sigma=lik.sigma,
+            l_from_cos=lik.l_from_cos,
             c_mode=c_mode,
             use_depth=rgbd,
-            depth_margin=cfg.depth_margin,
-            c_depth_margin=cfg.c_depth_margin,
-            depth_no_data=cfg.depth_no_data,
+            depth_margin=lik.depth_margin,
+            c_depth_margin=lik.c_depth_margin,
+            depth_no_data=lik.depth_no_data,
         )
         diameter = float(bundle.obj_info.diameter)
+        cand = cfg.candidates
         self.candidates = CandidateSampler(
-            z_range=tuple(cfg.z_range),  # type: ignore[arg-type]
-            box_extent=self.likelihood.box_extent if cfg.z_from_box else None,
-            z_box_factors=tuple(cfg.z_box_factors),  # type: ignore[arg-type]
-            depth_offset=tuple(cfg.depth_offset or (0.0, 0.5 * diameter)),  # type: ignore[arg-type]
-            depth_window=cfg.depth_window,
+            z_range=cand.z_range,
+            box_extent=self.likelihood.box_extent if cand.z_from_box else None,
+            z_box_factors=cand.z_box_factors,
+            depth_offset=cand.depth_offset or (0.0, 0.5 * diameter),
+            depth_window=cand.depth_window,
             use_depth=rgbd,
-            uv_fraction=cfg.box_uv_fraction,
+            uv_fraction=cand.box_uv_fraction,
             rotations=None
-            if cfg.candidate_rotations == "uniform"
-            else CodebookRotations(
-                self.likelihood, cfg.candidate_temperature, cfg.candidate_uniform_share
-            ),
+            if cand.rotations == "uniform"
+            else CodebookRotations(self.likelihood, cand.temperature, cand.uniform_share),
         )
         self.filter: Filter = make_filter(
             method, self.likelihood, cfg, self.candidates, np.random.default_rng(self.seed)
@@ -133,22 +134,28 @@ class Tracker:
         cls,
         path: str | Path | Bundle,
         method: str = "chpf",
-        n_particles: int = 50,
+        n_particles: int | None = 50,
         modality: str = "rgb",
         seed: int = 0,
         config: str | Path | dict[str, Any] | TrackConfig | None = None,
-        **options: Any,
+        **sections: dict[str, Any],
     ) -> Tracker:
         """Load the bundle folder ``path`` (or use a loaded Bundle) and build a Tracker.
 
-        ``config``: a YAML file / dict / TrackConfig; ``options`` override single TrackConfig
-        fields (e.g. sigma_t=0.02, srl_beta=0.5). Raises BundleError / ConfigError.
+        ``config``: a YAML file / nested dict / TrackConfig; ``sections`` override keys of
+        its sections (e.g. motion={"sigma_t": 0.02}, srl={"beta": 0.5}); n_particles sets
+        filter.n_particles (None: the config's). Raises BundleError / ConfigError.
         """
-        cfg = make_config(config, n_particles=n_particles, **options)
+        if n_particles is not None:
+            sections = {
+                **sections,
+                "filter": {**sections.get("filter", {}), "n_particles": n_particles},
+            }
+        cfg = make_config(config, **sections)
         if isinstance(path, Bundle):
             bundle = path
         else:
-            bundle = Bundle.load(path, threads=cfg.threads, spin=cfg.spin)
+            bundle = Bundle.load(path, threads=cfg.runtime.threads, spin=cfg.runtime.spin)
         return cls(bundle, method=method, modality=modality, seed=seed, config=cfg)
 
     def reset(self, seed: int | Sequence[int] | None = None) -> None:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from chpf.bundle import Bundle
 from chpf.crops import CropSpec
@@ -264,7 +265,20 @@ def test_parity_failure_writes_nothing(env, tmp_path, monkeypatch):
 def test_export_config_rejects_unknown_keys(tmp_path):
     p = tmp_path / "export.yaml"
     p.write_text("codebook_size: 100\nbogus: 1\n")
-    with pytest.raises(ConfigError, match="unknown keys"):
+    with pytest.raises(ConfigError, match="unknown key bogus"):
         ExportConfig.from_yaml(p)
     p.write_text("export:\n  codebook_size: 100\n")
     assert ExportConfig.from_yaml(p).codebook_size == 100
+    assert ExportConfig.from_yaml(p, ["threads=3"]).threads == 3
+    p.write_text("parity_samples: 1\n")
+    with pytest.raises(ConfigError, match=r"export\.yaml: parity_samples: 1 is out of range"):
+        ExportConfig.from_yaml(p)
+    p.write_text("unit: cm\n")
+    with pytest.raises(ConfigError, match="unit: expected one of m, mm"):
+        ExportConfig.from_yaml(p)
+
+
+def test_export_default_yaml_documents_every_key_with_its_default():
+    path = Path(__file__).resolve().parents[2] / "configs" / "export_default.yaml"
+    assert yaml.safe_load(path.read_text()) == ExportConfig().to_dict()
+    assert ExportConfig.from_yaml(path) == ExportConfig()

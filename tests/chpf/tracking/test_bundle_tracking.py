@@ -183,7 +183,7 @@ def _track(tracker, seq, modality="rgb", frames=None, collapse_at=None):
     [
         ("chpf", "rgb", 0.15, {}),
         ("chpf", "rgbd", 0.15, {}),
-        ("chpf", "rgb", 0.15, {"candidate_rotations": "codebook", "box_uv_fraction": 0.3}),
+        ("chpf", "rgb", 0.15, {"candidates": {"rotations": "codebook", "box_uv_fraction": 0.3}}),
         ("poserbpf", "rgb", 0.1, {}),
     ],
 )
@@ -191,7 +191,7 @@ def test_tracker_reaches_a_small_adds_on_an_unoccluded_sequence(
     bundle, rendered_sequence, method, modality, max_adds, options
 ):
     tracker = Tracker.from_bundle(bundle, method=method, modality=modality, seed=0, **options)
-    informed = options.get("candidate_rotations") == "codebook"
+    informed = options.get("candidates", {}).get("rotations") == "codebook"
     assert isinstance(tracker.candidates.rotations, CodebookRotations) == informed
     errs, res = _track(tracker, rendered_sequence, modality)
     diameter = bundle.obj_info.diameter
@@ -227,20 +227,32 @@ def test_tracker_rejects_bad_input(bundle, rendered_sequence, tmp_path):
     with pytest.raises(ImageSizeError):
         tr.step(seq.rgb[0][..., 0], K=seq.K)
     with pytest.raises(BundleError):
-        Tracker.from_bundle(bundle, crop_size=64)
+        Tracker.from_bundle(bundle, runtime={"crop_size": 64})
     with pytest.raises(BundleError):
         Tracker.from_bundle(tmp_path / "missing")
     with pytest.raises(ConfigError):
         Tracker.from_bundle(bundle, method="bogus")
     with pytest.raises(ConfigError):
-        Tracker.from_bundle(bundle, c_mode="depth", modality="rgb")
+        Tracker.from_bundle(bundle, chpf={"c_mode": "depth"}, modality="rgb")
     with pytest.raises(ConfigError):
         Tracker.from_bundle(bundle, no_such_option=1)
+    with pytest.raises(ConfigError, match=r"srl\.beta"):  # a key of the former flat form
+        Tracker.from_bundle(bundle, srl_beta=0.5)
+
+
+def test_tracker_takes_a_nested_dict_or_a_yaml_file_as_config(bundle):
+    """Tracker(bundle, config=dict) used to fail with AttributeError."""
+    tr = Tracker(bundle, method="srl", config={"srl": {"beta": 0.45}, "filter": {"n_particles": 7}})
+    assert tr.filter.strategy.beta == 0.45 and tr.config.filter.n_particles == 7
+    tr = Tracker(bundle, method="chpf", config=INFORMED)
+    assert isinstance(tr.candidates.rotations, CodebookRotations)
+    with pytest.raises(ConfigError, match=r"unknown key srl\.betta"):
+        Tracker(bundle, method="srl", config={"srl": {"betta": 0.5}})
 
 
 def test_tracker_survives_missing_boxes_and_depth_holes(bundle, rendered_sequence):
     seq = rendered_sequence
-    tr = Tracker.from_bundle(bundle, method="chpf", modality="rgbd", c_mode="both")
+    tr = Tracker.from_bundle(bundle, method="chpf", modality="rgbd", chpf={"c_mode": "both"})
     assert not tr.step(seq.rgb[0], depth=seq.depth[0], K=seq.K, box=None).ok
     for i in range(1, 8):
         depth = seq.depth[i].copy()

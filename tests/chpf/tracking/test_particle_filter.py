@@ -23,6 +23,7 @@ from chpf.tracking import (
     Scores,
     WeightCollapseWarning,
 )
+from chpf.tracking.strategies import AnnealingConfig, SRLConfig
 
 
 def make_filter(strategy, likelihood, seed=0, n=50):
@@ -50,7 +51,7 @@ def run(filt, oracle, seq, frames=None, box=True):
     return np.array(errs), results
 
 
-@pytest.mark.parametrize("strategy", [CHPF(), SRL(0.6), E2E()])
+@pytest.mark.parametrize("strategy", [CHPF(), SRL(SRLConfig(beta=0.6)), E2E()])
 def test_reinvigorating_filters_converge_from_the_candidate_distribution(sequence, strategy):
     oracle = OracleLikelihood()
     errs, results = run(make_filter(strategy, oracle), oracle, sequence)
@@ -65,7 +66,7 @@ def test_reinvigorating_filters_converge_from_the_candidate_distribution(sequenc
 
 
 @pytest.mark.parametrize(
-    "strategy", [CHPF(), SRL(0.6), AugMCL(), Annealing(), E2E(), NoReinvigoration()]
+    "strategy", [CHPF(), SRL(SRLConfig(beta=0.6)), AugMCL(), Annealing(), E2E(), NoReinvigoration()]
 )
 def test_every_strategy_tracks_a_moving_pose_from_a_good_start(sequence, strategy):
     oracle = OracleLikelihood()
@@ -80,7 +81,7 @@ def test_every_strategy_tracks_a_moving_pose_from_a_good_start(sequence, strateg
 
 def test_annealing_weighs_once_per_layer(sequence):
     oracle = OracleLikelihood()
-    filt = make_filter(Annealing(betas=(0.3, 0.6, 1.0)), oracle)
+    filt = make_filter(Annealing(AnnealingConfig(betas=(0.3, 0.6, 1.0))), oracle)
     run(filt, oracle, sequence, frames=range(5))
     assert oracle.calls == 15
     assert "anneal" in filt.step(Frame(sequence.rgb, None, sequence.K, sequence.box(5))).stage_ms
@@ -127,7 +128,7 @@ def test_occlusion_is_no_evidence_against_a_correct_belief_for_chpf(sequence):
     """Particles at the truth, L uninformative (occluded), C informative: SRL reinvigorates
     most particles, CH-PF few; on a wrong belief CH-PF reinvigorates most."""
     alphas = {}
-    for strategy in (CHPF(), SRL(0.6)):
+    for strategy in (CHPF(), SRL(SRLConfig(beta=0.6))):
         for where in ("right", "wrong"):
             oracle = OracleLikelihood(occluded_L=0.1)
             oracle.occluded = True
@@ -153,7 +154,7 @@ class _BrokenLikelihood:
 
 @pytest.mark.parametrize("value", [0.0, np.nan])
 def test_all_zero_or_nan_weights_reinvigorate_fully_with_one_warning(sequence, value):
-    filt = make_filter(SRL(0.6), _BrokenLikelihood(value))
+    filt = make_filter(SRL(SRLConfig(beta=0.6)), _BrokenLikelihood(value))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         frames = [Frame(sequence.rgb, None, sequence.K, sequence.box(i)) for i in range(4)]

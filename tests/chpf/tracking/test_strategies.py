@@ -8,6 +8,13 @@ import pytest
 from chpf.errors import ConfigError
 from chpf.tracking import CHPF, E2E, SRL, Annealing, AugMCL, FixedRate, NoReinvigoration, Scores
 from chpf.tracking.oracle import OracleLikelihood
+from chpf.tracking.strategies import (
+    AnnealingConfig,
+    AugMCLConfig,
+    E2EConfig,
+    FixedConfig,
+    SRLConfig,
+)
 from chpf.tracking.types import Frame
 
 L_FIXED = np.array([0.9, 0.5, 0.1, 0.0, 0.3])
@@ -34,15 +41,15 @@ def test_chpf_without_c_is_a_config_error():
 
 
 def test_srl_alpha_is_clipped_one_minus_mean_over_beta():
-    assert SRL(beta=0.6).alpha(scores()) == pytest.approx(1.0 - 0.36 / 0.6)
-    assert SRL(beta=0.3).alpha(scores()) == 0.0  # mean above beta -> clipped at 0
-    assert SRL(beta=0.5).alpha(scores(L=[0, 0, 0])) == 1.0
+    assert SRL(SRLConfig(beta=0.6)).alpha(scores()) == pytest.approx(1.0 - 0.36 / 0.6)
+    assert SRL(SRLConfig(beta=0.3)).alpha(scores()) == 0.0  # mean above beta -> clipped at 0
+    assert SRL(SRLConfig(beta=0.5)).alpha(scores(L=[0, 0, 0])) == 1.0
     with pytest.raises(ConfigError):
-        SRL(beta=0.0)
+        SRL(SRLConfig(beta=0.0))
 
 
 def test_augmcl_follows_slow_and_fast_averages():
-    s = AugMCL(a_slow=0.01, a_fast=0.5)
+    s = AugMCL(AugMCLConfig(a_slow=0.01, a_fast=0.5))
     # first frame: both averages start at w_avg -> alpha 0
     assert s.alpha(scores(L=[0.8, 0.8])) == 0.0
     assert s.w_slow == pytest.approx(0.8) and s.w_fast == pytest.approx(0.8)
@@ -57,24 +64,24 @@ def test_augmcl_follows_slow_and_fast_averages():
     s.reset()
     assert s.w_slow is None and s.alpha(scores(L=[0.1])) == 0.0
     with pytest.raises(ConfigError):
-        AugMCL(a_slow=0.5, a_fast=0.1)
+        AugMCL(AugMCLConfig(a_slow=0.5, a_fast=0.1))
 
 
 def test_fixed_rates_and_no_reinvigoration():
-    assert FixedRate(0.25).alpha(scores()) == 0.25
+    assert FixedRate(FixedConfig(rate=0.25)).alpha(scores()) == 0.25
     assert NoReinvigoration().alpha(scores()) == 0.0
     assert Annealing().alpha(scores()) == 0.0
-    assert E2E(rate=0.3).alpha(scores()) == 0.3
+    assert E2E(E2EConfig(rate=0.3)).alpha(scores()) == 0.3
     with pytest.raises(ConfigError):
-        FixedRate(1.5)
+        FixedRate(FixedConfig(rate=1.5))
 
 
 def test_annealing_schedule_is_validated():
-    a = Annealing(betas=(0.1, 0.4, 1.0), layer_decay=0.5)
+    a = Annealing(AnnealingConfig(betas=(0.1, 0.4, 1.0), decay=0.5))
     assert a.betas == (0.1, 0.4, 1.0) and a.layer_decay == 0.5
     for bad in [(0.5, 0.2, 1.0), (0.2, 0.5), ()]:
         with pytest.raises(ConfigError):
-            Annealing(betas=bad)
+            Annealing(AnnealingConfig(betas=bad))
 
 
 def test_e2e_proposes_around_the_single_frame_estimate():
@@ -83,7 +90,8 @@ def test_e2e_proposes_around_the_single_frame_estimate():
     oracle.set_pose(R_gt, t_gt)
     frame = Frame(np.zeros((4, 4, 3), np.uint8), None, np.eye(3), (0, 0, 1, 1))
     rng = np.random.default_rng(0)
-    R, t = E2E(rate=0.5, sigma_t=(0.01, 0.01, 0.01), sigma_r=0.05).propose(frame, 200, rng, oracle)
+    e2e = E2E(E2EConfig(rate=0.5, sigma_t=(0.01, 0.01, 0.01), sigma_r=0.05))
+    R, t = e2e.propose(frame, 200, rng, oracle)
     assert R.shape == (200, 3, 3) and t.shape == (200, 3)
     np.testing.assert_allclose(t.mean(0), t_gt, atol=0.003)
     np.testing.assert_allclose(t.std(0), 0.01, rtol=0.2)

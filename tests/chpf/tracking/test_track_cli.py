@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from chpf.bop import read_results_csv
 from chpf.errors import BundleError, ConfigError, DatasetError
-from chpf.track_cli import cli, main, parse_methods
+from chpf.track_cli import build_parser, cli, main, parse_methods, tracking_config
 from chpf.tracking.runlog import COLUMNS, read_log
 
 FRAMES = 8
@@ -34,6 +36,9 @@ def dataset(tmp_path_factory):
     cfg = load_config(None, [f"sequences.{k}={v}" for k, v in sets.items()])
     generate_sequences(["box"], root, cfg, seed=0, progress=False)
     return root
+
+
+CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 
 
 def _run(capsys, *argv):
@@ -158,17 +163,46 @@ def test_refusals(template_bundle, dataset, tmp_path, capsys):
         parse_methods("chpf,bogus")
     assert parse_methods("all")[0] == "chpf" and "poserbpf++" in parse_methods("all")
     # the console script prints one line and exits 2
-    import sys
+    code, err = _console_script(
+        ["--bundle", str(tmp_path / "nope"), "--dataset", str(dataset)], capsys
+    )
+    assert code == 2 and len(err) == 1 and err[0].startswith("error: ")
 
-    argv = sys.argv
-    sys.argv = ["chpf-track", "--bundle", str(tmp_path / "nope"), "--dataset", str(dataset)]
+
+def _console_script(argv: list[str], capsys) -> tuple[int, list[str]]:
+    """Exit code and stderr lines of the chpf-track console script run with ``argv``."""
+    saved = sys.argv
+    sys.argv = ["chpf-track", *argv]
     try:
         with pytest.raises(SystemExit) as exc:
             cli()
     finally:
-        sys.argv = argv
-    err = capsys.readouterr().err.strip().splitlines()
-    assert exc.value.code == 2 and len(err) == 1 and err[0].startswith("error: ")
+        sys.argv = saved
+    return exc.value.code, capsys.readouterr().err.strip().splitlines()
+
+
+def test_set_options_reach_the_trackers_and_bad_ones_exit_2(dataset, capsys):
+    args = build_parser().parse_args(
+        [
+            "--config",
+            str(CONFIGS / "track_informed.yaml"),
+            "--set",
+            "srl.beta=0.5",
+            "--set",
+            "likelihood.sigma=0.2",
+            "--n-particles",
+            "20",
+        ]
+    )
+    cfg = tracking_config(args)
+    assert cfg.srl.beta == 0.5 and cfg.likelihood.sigma == 0.2 and cfg.filter.n_particles == 20
+    assert cfg.candidates.rotations == "codebook"  # the file's keys stay
+    for bad, needle in (("srl.betta=1", "unknown key srl.betta"), ("srl.beta=-1", "srl.beta")):
+        code, err = _console_script(
+            ["--dataset", str(dataset), "--bundle", "b", "--set", bad], capsys
+        )
+        assert code == 2 and len(err) == 1 and err[0].startswith("error: --set: ")
+        assert needle in err[0]
 
 
 def test_demo_runs_chpf_and_two_baselines(template_bundle, tmp_path, capsys):
@@ -206,7 +240,7 @@ def test_rerun_with_other_settings_is_refused_unless_overwrite(
     results = out / "chpf_bop-test.csv"
     first = results.read_text()
     settings = json.loads((out / "track_settings.json").read_text())
-    assert settings["seed"] == 0 and settings["config"]["n_particles"] == 50
+    assert settings["seed"] == 0 and settings["config"]["filter"]["n_particles"] == 50
     assert settings["methods"] == ["chpf"] and len(settings["bundle"]["sha256"]) == 64
 
     other = [*base, "--seed", 1, "--n-particles", 20]
