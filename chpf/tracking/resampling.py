@@ -50,7 +50,7 @@ Resampler = Callable[[np.ndarray, int, np.random.Generator], np.ndarray]
 
 
 def _inverse_cdf(w: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Indices (n,) int64 of the sorted positions (n,) in [0, 1) in the cumulative sum of w (N,).
+    """Indices (n,) int64 of the positions (n,) in [0, 1) in the cumulative sum of w (N,).
 
     The last cumulative sum is forced to exactly 1 so that round-off (e.g. a sum of 0.9999999)
     can never send a position past the end; zero-weight particles are never drawn.
@@ -78,7 +78,7 @@ def multinomial_resample(w: np.ndarray, n: int, rng: np.random.Generator) -> np.
     """Draw n indices (n,) int64 from normalised weights w (N,) independently (n uniforms)."""
     if n <= 0:
         return np.zeros(0, dtype=np.int64)
-    return _inverse_cdf(w, np.sort(rng.random(n)))
+    return _inverse_cdf(w, rng.random(n))
 
 
 RESAMPLERS: dict[str, Resampler] = {
