@@ -32,23 +32,22 @@ from chpf.geometry import (
     geodesic_angle,
     quat_to_matrix,
 )
-from chpf.tracking.candidates import CandidateSampler, valid_box
+from chpf.tracking.candidates import CandidateSampler
+from chpf.tracking.filter_loop import FilterLoop, Particles, Weighed
 from chpf.tracking.motion import RandomWalk
-from chpf.tracking.resampling import effective_sample_size, normalise_weights, systematic_resample
+from chpf.tracking.resampling import Weights
 from chpf.tracking.rotation_diffusion import grid_spacing, neighbour_matrix
 from chpf.tracking.timing import add_ms, ms_since
-from chpf.tracking.types import CodebookLikelihood, Frame, TrackResult
-from chpf.tracking.warn import CollapseWarner
-
-_NAN = float("nan")
+from chpf.tracking.types import CodebookLikelihood, Frame
 
 
-class RaoBlackwellisedFilter:
+class RaoBlackwellisedFilter(FilterLoop):
     """PoseRBPF (``reinvigorate=0``) / PoseRBPF++ (``reinvigorate=0.5``); see module docstring.
 
     sigma: width of the cosine-to-likelihood map. rotation_sigma: rad, Gaussian kernel of the
     rotation prior (None = the grid spacing); n_neighbours: grid neighbours per entry.
     reset_threshold: best cosine similarity below which every particle is redrawn.
+    resampling: a scheme of ``chpf.tracking.resampling.RESAMPLERS``.
     """
 
     def __init__(
@@ -65,16 +64,16 @@ class RaoBlackwellisedFilter:
         reinvigorate: float = 0.0,
         rotation_estimate: str = "argmax",
         name: str = "poserbpf",
+        resampling: str = "systematic",
     ) -> None:
         if rotation_estimate not in ("argmax", "mean"):
             raise ValueError(f"rotation_estimate: 'argmax' or 'mean', got {rotation_estimate!r}")
+        super().__init__(n_particles, rng, f"RaoBlackwellisedFilter[{name}]", resampling)
         self.likelihood = likelihood
         self.grid: RotationGrid = likelihood.grid  # type: ignore[assignment]
-        self.n = int(n_particles)
         self.k = len(self.grid)
         self.motion = motion or RandomWalk()
         self.candidates = candidates or CandidateSampler()
-        self.rng = rng if rng is not None else np.random.default_rng(0)
         self.sigma = float(sigma)
         self.reset_threshold = float(reset_threshold)
         self.reinvigorate = float(reinvigorate)
@@ -84,16 +83,18 @@ class RaoBlackwellisedFilter:
         # float32 throughout the (N,K) arrays: K is ~20k, these dominate the filter's time
         self.diffusion = neighbour_matrix(self.grid, n_neighbours, rot_sigma).astype(np.float32)
         self._mean_radius = 2.0 * rot_sigma
-        self.warner = CollapseWarner(f"RaoBlackwellisedFilter[{name}]")
         self.reset()
 
     def reset(self) -> None:
         """Forget the particles and the estimate."""
+        super().reset()
         self.t: np.ndarray | None = None
         self.P: np.ndarray | None = None  # (N, K) orientation distributions
-        self.weights = np.full(self.n, 1.0 / self.n)
-        self.estimate: tuple[np.ndarray, np.ndarray] | None = None
         self.n_resets = 0
+
+    @property
+    def initialised(self) -> bool:
+        return self.t is not None
 
     def set_particles(self, t: np.ndarray, P: np.ndarray | None = None) -> None:
         """Replace the translation particles (N,3) and their distributions (N,K) (None: uniform)."""
@@ -105,22 +106,6 @@ class RaoBlackwellisedFilter:
         )
         self.weights = np.full(self.n, 1.0 / self.n)
 
-    def _result(
-        self, alpha: float, sum_l: float, ess: float, stage_ms: dict[str, float], weighed: bool
-    ) -> TrackResult:
-        est = self.estimate
-        return TrackResult(
-            R=None if est is None else est[0].copy(),
-            t=None if est is None else est[1].copy(),
-            alpha=float(alpha),
-            sum_L=float(sum_l),
-            sum_C=_NAN,
-            ess=float(ess),
-            stage_ms=stage_ms,
-            ok=est is not None,
-            weighed=weighed,
-        )
-
     def _rotation(self, p: np.ndarray) -> np.ndarray:
         """Allocentric rotation (3,3) from a distribution p (K,) over the grid."""
         k_best = int(np.argmax(p))
@@ -129,26 +114,18 @@ class RaoBlackwellisedFilter:
         near = geodesic_angle(self.grid.rotations[k_best], self.grid.rotations) < self._mean_radius
         return quat_to_matrix(average_quaternions(self.grid.quats[near], p[near]))
 
-    def step(self, frame: Frame) -> TrackResult:
-        """Process one frame (see module docstring)."""
-        t_start = time.perf_counter()
-        stage_ms: dict[str, float] = {}
-        box = valid_box(frame.box)
-        t0 = time.perf_counter()
-        if self.t is None or self.P is None:
-            if box is None:
-                return self._result(_NAN, _NAN, _NAN, {"total": ms_since(t_start)}, False)
-            self.set_particles(self.candidates.translations(self.n, frame, self.rng))
-            stage_ms["init"] = ms_since(t0)
-        else:
-            self.t = self.motion.predict_translation(self.t, self.rng)
-            self.P = np.asarray(self.P @ self.diffusion)
-            stage_ms["predict"] = ms_since(t0)
-            if box is None:
-                stage_ms["total"] = ms_since(t_start)
-                return self._result(_NAN, _NAN, _NAN, stage_ms, False)
-        assert self.t is not None and self.P is not None
+    # ------------------------------------------------------------------ FilterLoop hooks
+    def _initialise(self, frame: Frame) -> None:
+        self.set_particles(self.candidates.translations(self.n, frame, self.rng))
 
+    def _predict(self) -> None:
+        assert self.t is not None and self.P is not None
+        self.t = self.motion.predict_translation(self.t, self.rng)
+        self.P = np.asarray(self.P @ self.diffusion)
+
+    def _weigh(self, frame: Frame, stage_ms: dict[str, float]) -> Weighed:
+        """Posterior orientation distributions into ``P``; particle weights sum_k lik x prior."""
+        assert self.t is not None and self.P is not None
         t0 = time.perf_counter()
         cs = self.likelihood.codebook_scores(frame, self.t)
         stage_ms["likelihood"] = ms_since(t0)
@@ -172,44 +149,33 @@ class RaoBlackwellisedFilter:
         empty = row <= 0
         post /= np.where(empty, 1.0, row).astype(np.float32)[:, None]
         post[empty] = 1.0 / self.k
+        self.P = post
         best = cos.max(axis=1)
         best_sim = float(best.max()) if best.size else -1.0
-        sum_l = float(np.clip(best, 0.0, None).sum())
-        w = normalise_weights(wi)
+        weights = Weights.from_weights(wi)
+        reset = weights.collapsed or best_sim < self.reset_threshold
+        self.n_resets += int(reset)
         stage_ms["weigh"] = ms_since(t0)
-
-        t0 = time.perf_counter()
-        if w is None:
-            self.warner.collapse()
-            ess = 0.0
-            if self.estimate is None:
-                w_est = np.full(self.n, 1.0 / self.n)
-        else:
-            ess = effective_sample_size(w)
-            w_est = w
-        if w is not None or self.estimate is None:
-            t_est = w_est @ self.t
-            R_allo = self._rotation(w_est.astype(np.float32) @ post)
-            self.estimate = (allocentric_to_egocentric(R_allo, t_est), t_est)
-        stage_ms["estimate"] = ms_since(t0)
-
-        t0 = time.perf_counter()
-        reset = w is None or best_sim < self.reset_threshold
-        if reset:
-            self.n_resets += 1
         alpha = 1.0 if reset else self.reinvigorate
-        n_cand = self.n if reset else round(alpha * self.n)
-        parts_t, parts_p = [], []
-        if self.n - n_cand > 0:
-            idx = systematic_resample(w, self.n - n_cand, self.rng)
-            parts_t.append(self.t[idx])
-            parts_p.append(post[idx])
-        if n_cand > 0:
-            parts_t.append(self.candidates.translations(n_cand, frame, self.rng))
-            parts_p.append(np.full((n_cand, self.k), 1.0 / self.k, np.float32))
-        self.t = np.concatenate(parts_t)
-        self.P = np.concatenate(parts_p)
-        self.weights = np.full(self.n, 1.0 / self.n)
-        stage_ms["resample"] = ms_since(t0)
-        stage_ms["total"] = ms_since(t_start)
-        return self._result(alpha, sum_l, ess, stage_ms, True)
+        return Weighed(weights, alpha, float(np.clip(best, 0.0, None).sum()))
+
+    def _estimate(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean t; rotation from the weighted mixture of the distributions."""
+        assert self.t is not None and self.P is not None
+        t_est = w @ self.t
+        R_allo = self._rotation(w.astype(np.float32) @ self.P)
+        return allocentric_to_egocentric(R_allo, t_est), t_est
+
+    def _take(self, idx: np.ndarray) -> Particles:
+        assert self.t is not None and self.P is not None
+        return self.t[idx], self.P[idx]
+
+    def _draw(self, frame: Frame, n: int) -> Particles:
+        """Translations from phi_cand with uniform orientation distributions."""
+        return (
+            self.candidates.translations(n, frame, self.rng),
+            np.full((n, self.k), 1.0 / self.k, np.float32),
+        )
+
+    def _assign(self, particles: Particles) -> None:
+        self.t, self.P = particles
