@@ -42,12 +42,11 @@ def _auc_rows(lines: list[str]) -> list[list[str]]:
     return rows
 
 
-def test_readme_demo_table_is_what_the_demo_prints(tmp_path, monkeypatch, capsys):
-    """``chpf-track --demo --no-plot`` (shipped bundle, generated occluded sequence, seed 0)
+def test_readme_demo_table_is_what_the_demo_prints(tmp_path, capsys):
+    """``chpf-track --demo --no-plot`` (shipped bundle, shipped occluded sequence, seed 0)
     prints the README's table, fps aside (8 s in the suite here, 11 s of CPU)."""
     from chpf.track_cli import main
 
-    monkeypatch.setenv("CHPF_CACHE", str(tmp_path / "cache"))
     assert main(["--demo", "--no-plot", "--no-progress", "--out", str(tmp_path / "out")]) == 0
     printed = _auc_rows(capsys.readouterr().out.splitlines())
     text = (ROOT / "README.md").read_text()
