@@ -12,7 +12,13 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
    L = (1 + c) / 2 (see L_FROM_COS);
 4. head: C = p_misaligned(observed CH embedding, codebook CH embedding of the entry);
 5. depth (RGB-D): L_depth and C_depth from the codebook depth crops (chpf.tracking.depth_scores);
-   L and w are multiplied by L_depth; C is the learned C, C_depth or their mean (``c_mode``).
+   the importance weight w is multiplied by L_depth; C is the learned C, C_depth or their mean
+   (``c_mode``). L stays the appearance's, as PoseRBPF's similarity that decides its resets:
+   the strategies compare it with a fixed scale (SRL's beta) or with C, and L_depth, a fraction
+   that falls to 0 a few centimetres off the measured surface, would shrink it for every
+   particle of a good belief and hold their alpha near 1 (a random search: ADD-S AUC 0 on
+   a partly occluded box sequence). Depth's counter-evidence reaches CH-PF's alpha through
+   C_depth (``c_mode`` depth or both).
 
 Particles with z below ``z_min`` (behind or at the camera) get c = -1 (L = 0) and C = 1.
 """
@@ -181,7 +187,6 @@ class BundleLikelihood:
         if self.use_depth and frame.depth is not None:
             t0 = time.perf_counter()
             d = self._depth(frame, idx, t)
-            L = L * d.L
             w = w * d.L
             if self.c_mode == "depth":
                 C = d.C

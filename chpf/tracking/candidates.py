@@ -9,8 +9,11 @@ that fraction of its width and height around its centre); the depth z is
   extent in metres) is known, uniform in ``z_box_factors`` times the depth at which the object
   would fill the box: z_box = fx * box_extent / max(w, h);
 - RGB-D: the measured depth at (u, v) plus a uniform offset in ``depth_offset`` (the surface is
-  in front of the centre). Holes: the median of the valid depths in a small window around
-  (u, v), else of the valid depths in the whole box, else the RGB rule.
+  in front of the centre). A measured depth beyond the RGB rule's far end is background seen
+  past the object (the box is larger than the object would be there: nearer it may be, when
+  the box shows only the visible part) and counts as a hole. Holes: the median of the valid
+  depths in a small window around (u, v), else of the valid depths in the whole box, else the
+  RGB rule.
 """
 
 from __future__ import annotations
@@ -72,29 +75,35 @@ class CandidateSampler:
     uv_fraction: float = 1.0
     rotations: RotationSource | None = None  # None: uniform on SO(3)
 
-    def _z_rgb(self, n: int, box: Box, K: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def _z_rgb_range(self, box: Box, K: np.ndarray) -> tuple[float, float]:
+        """The RGB rule's depth range (lo, hi) metres for a box (module docstring)."""
         if self.box_extent is not None and self.box_extent > 0:
             z_box = K[0, 0] * self.box_extent / max(box[2], box[3])
-            lo, hi = self.z_box_factors[0] * z_box, self.z_box_factors[1] * z_box
-        else:
-            lo, hi = self.z_range
-        return rng.uniform(lo, hi, n)
+            return self.z_box_factors[0] * z_box, self.z_box_factors[1] * z_box
+        return self.z_range[0], self.z_range[1]
 
-    def _z_depth(self, u: np.ndarray, v: np.ndarray, box: Box, depth: np.ndarray) -> np.ndarray:
-        """Measured depth (n,) at (u, v), robust to holes (nan where nothing valid at all)."""
+    def _z_depth(
+        self, u: np.ndarray, v: np.ndarray, box: Box, depth: np.ndarray, z_max: float
+    ) -> np.ndarray:
+        """Measured depth (n,) at (u, v), robust to holes and to background farther than
+        ``z_max`` metres (nan where nothing valid at all)."""
         h, w = depth.shape
+
+        def usable(d: np.ndarray) -> np.ndarray:  # background and holes -> 0
+            return np.where(d <= z_max, d, 0.0)
+
         r = int(self.depth_window)
         offs = np.arange(-r, r + 1)
         ui = np.clip(np.rint(u).astype(np.int64)[:, None, None] + offs[None, None, :], 0, w - 1)
         vi = np.clip(np.rint(v).astype(np.int64)[:, None, None] + offs[None, :, None], 0, h - 1)
-        patch = depth[vi, ui].reshape(u.shape[0], -1)
-        centre = depth[np.clip(np.rint(v).astype(np.int64), 0, h - 1),
-                       np.clip(np.rint(u).astype(np.int64), 0, w - 1)]  # fmt: skip
+        patch = usable(depth[vi, ui].reshape(u.shape[0], -1))
+        centre = usable(depth[np.clip(np.rint(v).astype(np.int64), 0, h - 1),
+                              np.clip(np.rint(u).astype(np.int64), 0, w - 1)])  # fmt: skip
         z = np.where(centre > 0, centre, _median_valid(patch))
         if np.any(np.isnan(z)):
             x0, y0 = max(int(np.floor(box[0])), 0), max(int(np.floor(box[1])), 0)
             x1, y1 = min(int(np.ceil(box[0] + box[2])), w), min(int(np.ceil(box[1] + box[3])), h)
-            region = depth[y0:y1, x0:x1] if (x1 > x0 and y1 > y0) else np.zeros(0)
+            region = usable(depth[y0:y1, x0:x1]) if (x1 > x0 and y1 > y0) else np.zeros(0)
             good = region[region > 0]
             z = np.where(np.isnan(z), np.median(good) if good.size else np.nan, z)
         return z
@@ -109,9 +118,10 @@ class CandidateSampler:
         margin = 0.5 * (1.0 - self.uv_fraction)
         u = box[0] + (margin + self.uv_fraction * rng.random(n)) * box[2]
         v = box[1] + (margin + self.uv_fraction * rng.random(n)) * box[3]
-        z_rgb = self._z_rgb(n, box, K, rng)
+        lo, hi = self._z_rgb_range(box, K)
+        z_rgb = rng.uniform(lo, hi, n)
         if self.use_depth and frame.depth is not None:
-            z_meas = self._z_depth(u, v, box, np.asarray(frame.depth))
+            z_meas = self._z_depth(u, v, box, np.asarray(frame.depth), hi)
             offset = rng.uniform(self.depth_offset[0], self.depth_offset[1], n)
             z = np.where(np.isnan(z_meas), z_rgb, z_meas + offset)
         else:

@@ -64,6 +64,13 @@ def check_frame(rgb: np.ndarray, depth: np.ndarray | None, K: np.ndarray) -> np.
     return K
 
 
+def depth_in_metres(depth: np.ndarray) -> np.ndarray:
+    """Depth (H,W) as float32 metres with every non-finite or negative value made 0 (missing):
+    the one place where a sensor's NaN / inf markers become the toolkit's holes."""
+    d = np.asarray(depth, dtype=np.float32)
+    return np.where(np.isfinite(d) & (d > 0), d, np.float32(0.0))
+
+
 class Tracker:
     """Tracks one object with one method; see the module docstring.
 
@@ -172,11 +179,12 @@ class Tracker:
         K: np.ndarray | None = None,
         box: Box | None = None,
     ) -> TrackResult:
-        """One frame: rgb (H,W,3) uint8, depth (H,W) float32 m or None, K (3,3), box (x,y,w,h)
-        pixels or None (predict only). Returns a TrackResult (pose R, t metres, alpha, ...)."""
+        """One frame: rgb (H,W,3) uint8, depth (H,W) float32 m or None (non-finite or negative
+        values are missing, as 0 is), K (3,3), box (x,y,w,h) pixels or None (predict only).
+        Returns a TrackResult (pose R, t metres, alpha, ...)."""
         K_arr = check_frame(rgb, depth, K)  # type: ignore[arg-type]
         if self.modality == "rgb":
             depth = None
         elif depth is not None:
-            depth = np.asarray(depth, dtype=np.float32)
+            depth = depth_in_metres(depth)
         return self.filter.step(Frame(rgb=rgb, depth=depth, K=K_arr, box=box))

@@ -58,6 +58,7 @@ TB_CODEBOOK = 512
 HEAD_A, HEAD_B = 12.0, 0.6
 SEQ_K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
 SEQ_W, SEQ_H = 320, 240
+OCCLUDER_R = axis_angle_to_matrix(np.array([np.pi / 2, 0.0, 0.0]))  # a can: seen from its side
 
 
 def _template_encoder(size: int) -> bytes:
@@ -175,12 +176,19 @@ class RenderedSequence:
         return int(self.t.shape[0])
 
 
-def render_sequence(n: int = 24, name: str = TB_OBJECT, z: float = 0.55) -> RenderedSequence:
-    """n frames of built-in object ``name`` at about ``z`` metres, moving and turning slowly."""
+def render_sequence(
+    n: int = 24, name: str = TB_OBJECT, z: float = 0.55, occluder: str | None = None
+) -> RenderedSequence:
+    """n frames of built-in object ``name`` at about ``z`` metres, moving and turning slowly.
+
+    ``occluder``: a built-in object that passes in front of it at 0.6 z, from left to right,
+    covering its centre around frame n / 2; then ``mask`` (and the box) is the visible part.
+    """
     from chpf.objects import get_object
     from chpf.render import Renderer
 
     obj = get_object(name)
+    occ = get_object(occluder) if occluder is not None else None
     i = np.arange(n, dtype=np.float64)
     aa = np.stack([0.6 + 0.02 * i, 0.4 - 0.015 * i, 0.2 + 0.01 * i], axis=-1)
     R = axis_angle_to_matrix(aa)
@@ -191,8 +199,14 @@ def render_sequence(n: int = 24, name: str = TB_OBJECT, z: float = 0.55) -> Rend
     mask = np.zeros((n, SEQ_H, SEQ_W), bool)
     with Renderer(SEQ_W, SEQ_H) as r:
         for k in range(n):
-            out = r.render([(obj, R[k], t[k])], SEQ_K)
-            rgb[k], depth[k], mask[k] = out.rgb, out.depth, out.masks[0]
+            scene = [(obj, R[k], t[k])]
+            if occ is not None:  # crosses the object's ray at frame n / 2, 1.2 diameters a side
+                side = 0.6 * (t[k, :2] / t[k, 2]) * z
+                dx = 1.2 * obj.diameter * 0.6 * (2.0 * k / max(n - 1, 1) - 1.0)
+                scene.append((occ, OCCLUDER_R, np.array([side[0] + dx, side[1], 0.6 * z])))
+            out = r.render(scene, SEQ_K)
+            rgb[k], depth[k] = out.rgb, out.depth
+            mask[k] = out.masks[0] if occ is None else out.visible_masks[0]
     return RenderedSequence(rgb, depth, mask, R, t, SEQ_K.copy())
 
 

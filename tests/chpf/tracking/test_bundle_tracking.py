@@ -13,10 +13,11 @@ from chpf.errors import BundleError, ConfigError, ImageSizeError
 from chpf.geometry import (
     allocentric_to_egocentric,
     axis_angle_to_matrix,
+    egocentric_to_allocentric,
     geodesic_angle,
     random_rotations,
 )
-from chpf.metrics import adds
+from chpf.metrics import add, adds
 from chpf.objects import get_object
 from chpf.tracking.bundle_likelihood import BundleLikelihood, likelihood_from_cosine
 from chpf.tracking.codebook_candidates import CodebookRotations
@@ -118,8 +119,16 @@ def test_depth_likelihoods_and_counter_hypothesis(bundle, rendered_sequence):
     # a hypothesis in front of the measured surface: the sensor sees behind it -> C_depth high
     assert s["closer"].C.min() > 0.8
     # behind the measured surface: explained by an occluder -> C_depth low, but L_depth low too
-    assert s["farther"].C.max() < 0.3 and s["farther"].L.max() < 0.1
+    R_far, t_far = h["farther"]
+    k_far = bundle.nearest(egocentric_to_allocentric(R_far, t_far))
+    l_depth = like.depth_weight(frame, k_far, t_far)
+    assert s["farther"].C.max() < 0.3 and l_depth.max() < 0.1
     assert "depth" in s["truth"].stage_ms
+    # L_depth weighs the particles (w); L stays the appearance's, which the strategies compare
+    # with C or with a fixed scale (before, L = L x L_depth held SRL's and CH-PF's alpha near 1)
+    rgb_only = BundleLikelihood(bundle, c_mode="none").score(frame, R_far, t_far)
+    np.testing.assert_array_equal(s["farther"].L, rgb_only.L)
+    np.testing.assert_allclose(s["farther"].w, rgb_only.w * l_depth, rtol=1e-12)
     both = BundleLikelihood(bundle, c_mode="both", use_depth=True).score(frame, *h["closer"])
     learned = BundleLikelihood(bundle, c_mode="learned").score(frame, *h["closer"])
     np.testing.assert_allclose(both.C, 0.5 * (s["closer"].C + learned.C), atol=1e-6)
@@ -155,47 +164,74 @@ def test_single_frame_estimate_from_the_box(bundle, rendered_sequence):
     assert like.single_frame_estimate(Frame(seq.rgb[3], None, seq.K, None)) is None
 
 
-def _track(tracker, seq, modality="rgb", frames=None, collapse_at=None):
-    """ADD-S (T,) metres (inf without an estimate) and the TrackResults of ``tracker`` on
-    ``seq``; at frame ``collapse_at`` every particle is first put on one wrong pose (90 deg off,
-    0.3 diameters to the side)."""
+def _track(tracker, seq, modality="rgb", frames=None, collapse_at=None, wall=None):
+    """Errors (T,3) against the truth, columns ADD-S and ADD in diameters and the rotation error
+    in degrees (inf without an estimate), and the TrackResults of ``tracker`` on ``seq``; at
+    frame ``collapse_at`` every particle is first put on one wrong pose (90 deg off, 0.3
+    diameters to the side). ``wall``: depth (m) of a background wall where ``seq`` has none."""
     pts = get_object(tracker.bundle.obj_info.name).points
+    d = tracker.bundle.obj_info.diameter
     errs, res = [], []
     for i in frames if frames is not None else range(len(seq)):
         if i == collapse_at:
             wrong_R = axis_angle_to_matrix(np.array([0.0, np.pi / 2, 0.0])) @ seq.R[i]
-            wrong_t = seq.t[i] + np.array([0.3 * tracker.bundle.obj_info.diameter, 0.0, 0.0])
+            wrong_t = seq.t[i] + np.array([0.3 * d, 0.0, 0.0])
             n = tracker.filter.n
             tracker.filter.set_particles(
                 np.repeat(wrong_R[None], n, 0), np.repeat(wrong_t[None], n, 0)
             )
         depth = seq.depth[i] if modality == "rgbd" else None
+        if depth is not None and wall is not None:
+            depth = np.where(depth > 0, depth, np.float32(wall))
         r = tracker.step(seq.rgb[i], depth=depth, K=seq.K, box=seq.box(i))
         res.append(r)
-        errs.append(adds(pts, r.R, r.t, seq.R[i], seq.t[i]) if r.ok else np.inf)
+        if r.ok:
+            errs.append(
+                [
+                    adds(pts, r.R, r.t, seq.R[i], seq.t[i]) / d,
+                    add(pts, r.R, r.t, seq.R[i], seq.t[i]) / d,
+                    np.degrees(geodesic_angle(r.R, seq.R[i])),
+                ]
+            )
+        else:
+            errs.append([np.inf, np.inf, np.inf])
     return np.array(errs), res
 
 
 @pytest.mark.parametrize(
-    ("method", "modality", "max_adds", "options"),
+    ("method", "modality", "max_adds", "max_add", "max_deg", "options"),
     # The template bundle's likelihood is much narrower than a trained autoencoder's (raw pixel
-    # correlation), which limits the 6D filters more than the Rao-Blackwellised one.
+    # correlation), which limits the 6D filters more than the Rao-Blackwellised one. Measured,
+    # medians over the last 8 frames for seeds 0 / 1 / 2 (ADD in diameters, rotation in deg):
+    # CH-PF RGB 0.55 / 0.45 / 0.60, 136 / 94 / 156 (with blind candidates it finds the box's
+    # place, ADD-S 0.12 / 0.07 / 0.08, but not which way it is turned: no bound on ADD or the
+    # rotation); RGB-D 0.20 / 0.54 / 0.15, 34 / 122 / 31 (seed 1 turned); informed 0.22 / 0.16 /
+    # 0.19, 45 / 34 / 39; PoseRBPF 0.103 / 0.103 / 0.107, 17.2 / 15.9 / 15.9. Seed 0 is run.
     [
-        ("chpf", "rgb", 0.15, {}),
-        ("chpf", "rgbd", 0.15, {}),
-        ("chpf", "rgb", 0.15, {"candidates": {"rotations": "codebook", "box_uv_fraction": 0.3}}),
-        ("poserbpf", "rgb", 0.1, {}),
+        ("chpf", "rgb", 0.15, None, None, {}),
+        ("chpf", "rgbd", 0.15, 0.3, 50.0, {}),
+        (
+            "chpf",
+            "rgb",
+            0.15,
+            0.3,
+            60.0,
+            {"candidates": {"rotations": "codebook", "box_uv_fraction": 0.3}},
+        ),
+        ("poserbpf", "rgb", 0.1, 0.15, 25.0, {}),
     ],
 )
 def test_tracker_reaches_a_small_adds_on_an_unoccluded_sequence(
-    bundle, rendered_sequence, method, modality, max_adds, options
+    bundle, rendered_sequence, method, modality, max_adds, max_add, max_deg, options
 ):
     tracker = Tracker.from_bundle(bundle, method=method, modality=modality, seed=0, **options)
     informed = options.get("candidates", {}).get("rotations") == "codebook"
     assert isinstance(tracker.candidates.rotations, CodebookRotations) == informed
     errs, res = _track(tracker, rendered_sequence, modality)
-    diameter = bundle.obj_info.diameter
-    assert np.median(errs[-8:]) < max_adds * diameter, (method, modality, errs)
+    med = np.median(errs[-8:], axis=0)  # ADD-S (d), ADD (d), rotation (deg)
+    assert med[0] < max_adds, (method, modality, errs)
+    if max_add is not None:
+        assert med[1] < max_add and med[2] < max_deg, (method, modality, med)
     r = res[-1]
     assert r.ok and r.R.shape == (3, 3) and r.t.shape == (3,)
     assert np.isfinite(r.alpha) and np.isfinite(r.sum_L) and np.isfinite(r.ess)
@@ -262,6 +298,29 @@ def test_tracker_survives_missing_boxes_and_depth_holes(bundle, rendered_sequenc
         assert r.ok and np.all(np.isfinite(r.t)) and r.weighed == (box is not None)
 
 
+@pytest.mark.parametrize("method", ["chpf", "srl", "augmcl", "annealing", "e2e", "poserbpf++"])
+def test_non_finite_depth_is_missing_depth(bundle, rendered_sequence, method):
+    """+inf, -inf, NaN and negative depth (sensor markers) are holes: the poses equal those of
+    the same run with 0 there (before: a cKDTree traceback for the 6D filters, NaN for the
+    RBPFs)."""
+    seq = rendered_sequence
+    marked, holes = [], []
+    for i in range(4):
+        d = seq.depth[i].copy()
+        d[:, ::4], d[::5, :], d[::7, ::3], d[1::9, :] = np.inf, np.nan, -np.inf, -0.5
+        marked.append(d)
+        holes.append(np.where(np.isfinite(d) & (d > 0), d, 0.0).astype(np.float32))
+
+    def poses(depths):
+        tr = Tracker.from_bundle(bundle, method=method, modality="rgbd", seed=3)
+        res = [tr.step(seq.rgb[i], depth=d, K=seq.K, box=seq.box(i)) for i, d in enumerate(depths)]
+        return np.stack([np.concatenate([r.R.ravel(), r.t]) for r in res])
+
+    got = poses(marked)
+    assert np.all(np.isfinite(got))
+    np.testing.assert_array_equal(got, poses(holes))
+
+
 def _shipped_bundle() -> Bundle:
     from chpf.tracking.demo import shipped_bundle
 
@@ -296,22 +355,75 @@ INFORMED = Path(__file__).resolve().parents[3] / "configs" / "track_informed.yam
 
 
 @pytest.mark.parametrize(
-    ("method", "config", "max_adds"),
-    [("e2e", None, 0.1), ("poserbpf", None, 0.2), ("chpf", INFORMED, 0.1)],
+    ("method", "config", "max_adds", "max_add", "max_deg"),
+    [
+        ("e2e", None, 0.1, 0.13, 10.0),
+        ("poserbpf", None, 0.2, 0.4, 20.0),
+        ("chpf", INFORMED, 0.1, 0.2, 15.0),
+    ],
 )
-def test_shipped_bundle_tracks_an_unoccluded_sequence(sequence_renderer, method, config, max_adds):
+def test_shipped_bundle_tracks_an_unoccluded_sequence(
+    sequence_renderer, method, config, max_adds, max_add, max_deg
+):
     """Starting from the detection boxes alone, MCL + E2E, PoseRBPF and CH-PF (with the informed
     candidate distribution; with the paper's uniform one it stays a 6D random search, see the
-    README) reach a small ADD-S with the trained networks: the median ADD-S over frames 10-29
-    of seeds 0-2, in diameters, is below ``max_adds`` (measured: E2E 0.049, PoseRBPF 0.143,
-    whose seeds range from 0.09 to 0.32, CH-PF 0.072)."""
+    README) track the pose with the trained networks: the medians over frames 10-29 of seeds
+    0-2 of ADD-S and ADD (diameters) and of the rotation error (deg) are below the bounds
+    (measured: E2E 0.049, 0.087, 6.4 deg; PoseRBPF 0.143, 0.272, 13.5 deg, whose seeds range
+    from 0.09 to 0.32 in ADD-S; CH-PF 0.072, 0.132, 9.2 deg)."""
     bundle = _shipped_bundle()
     seq = sequence_renderer(30, name=bundle.obj_info.name, z=3.0 * bundle.obj_info.diameter)
     errs = []
     for seed in (0, 1, 2):
         tracker = Tracker.from_bundle(bundle, method=method, config=config, seed=seed)
-        errs.append(_track(tracker, seq)[0][10:] / bundle.obj_info.diameter)
-    assert np.median(np.concatenate(errs)) < max_adds, (method, np.round(errs, 3))
+        errs.append(_track(tracker, seq)[0][10:])
+    med = np.median(np.concatenate(errs), axis=0)
+    assert med[0] < max_adds and med[1] < max_add and med[2] < max_deg, (method, med)
+
+
+@pytest.mark.parametrize(
+    ("method", "config", "max_add", "max_deg"),
+    [("e2e", None, 0.12, 10.0), ("poserbpf", None, 0.45, 18.0), ("chpf", INFORMED, 0.3, 15.0)],
+)
+def test_shipped_bundle_tracks_through_an_occluder(
+    sequence_renderer, method, config, max_add, max_deg
+):
+    """A can passes in front of the box (frames 8-20 show 54-97 % of it; the box is the
+    visible part's): the medians over those frames of seeds 0-2 of ADD (diameters) and of the
+    rotation error (deg) stay below the bounds (measured: E2E 0.078, 5.6 deg; PoseRBPF 0.295,
+    10.9 deg; CH-PF 0.186, 9.0 deg)."""
+    bundle = _shipped_bundle()
+    d = bundle.obj_info.diameter
+    seq = sequence_renderer(30, name=bundle.obj_info.name, z=3.0 * d, occluder="can")
+    alone = sequence_renderer(21, name=bundle.obj_info.name, z=3.0 * d)
+    visible = seq.mask[8:21].sum(axis=(1, 2)) / alone.mask[8:21].sum(axis=(1, 2))
+    assert visible.min() < 0.6 and visible.max() < 1.0  # the can hides a good part of the box
+    errs = []
+    for seed in (0, 1, 2):
+        tracker = Tracker.from_bundle(bundle, method=method, config=config, seed=seed)
+        errs.append(_track(tracker, seq, frames=range(21))[0][8:])
+    med = np.median(np.concatenate(errs), axis=0)
+    assert med[1] < max_add and med[2] < max_deg, (method, med)
+
+
+@pytest.mark.parametrize("method", ["chpf", "srl"])
+def test_shipped_bundle_rgbd_is_at_least_as_accurate_as_rgb(sequence_renderer, method):
+    """With the paper's phi_cand ((u, v) anywhere in the box, also on the background) and a wall
+    2 m behind the box in the depth image, RGB-D is at least as accurate as RGB: medians over
+    frames 10-29 of seeds 0-2 of ADD-S and ADD. Measured (ADD-S, ADD in diameters): CH-PF RGB
+    0.132, 0.382, RGB-D 0.104, 0.334; SRL RGB 0.124, 0.373, RGB-D 0.114, 0.357. Before,
+    candidates took the wall's depth and L was multiplied by L_depth: RGB-D 1.17 and 1.30
+    ADD-S, the estimate 1.4-1.7 diameters off."""
+    bundle = _shipped_bundle()
+    seq = sequence_renderer(30, name=bundle.obj_info.name, z=3.0 * bundle.obj_info.diameter)
+    med = {}
+    for modality in ("rgb", "rgbd"):
+        errs = []
+        for seed in (0, 1, 2):
+            tracker = Tracker.from_bundle(bundle, method=method, modality=modality, seed=seed)
+            errs.append(_track(tracker, seq, modality, wall=2.0)[0][10:])
+        med[modality] = np.median(np.concatenate(errs), axis=0)
+    assert np.all(med["rgbd"][:2] <= med["rgb"][:2]), (method, med)
 
 
 def test_shipped_bundle_chpf_alpha_rises_after_a_forced_collapse_and_the_estimate_recovers(
@@ -323,12 +435,15 @@ def test_shipped_bundle_chpf_alpha_rises_after_a_forced_collapse_and_the_estimat
     tracker = Tracker.from_bundle(bundle, method="chpf", config=INFORMED)
     errs, res = _track(tracker, seq, collapse_at=30)
     alphas = np.array([r.alpha for r in res])
-    rot_err = np.degrees(geodesic_angle(np.stack([r.R for r in res]), seq.R))
-    # tracking before the collapse (ADD-S 0.05-0.13 d for this bundle's CH-PF, seeds 0-2) ...
-    assert np.median(errs[20:30]) < 0.15 * d
+    errs, add_errs, rot_err = errs.T
+    errs = errs * d  # metres, as the bounds below
+    # tracking before the collapse (ADD-S 0.05-0.13 d, ADD 0.07-0.27 d for this bundle's CH-PF,
+    # seeds 0-2; 0.27-0.28 d at most before and after, a random orientation ~0.5 d) ...
+    assert np.median(errs[20:30]) < 0.15 * d and np.median(add_errs[20:30]) < 0.35
     assert alphas[20:30].mean() < 0.7  # ... with most particles kept from the belief
     assert rot_err[30] > 45.0 and alphas[30] > 0.85  # collapsed: doubt, reinvigoration
     # recovered: the orientation is back (the collapse turned it 90 deg; 7-10 deg after frame 40)
     # and ADD-S is at the tracking level again; settled: alpha is low again
     assert np.median(rot_err[40:]) < 15.0 and np.median(errs[40:]) < 0.15 * d
+    assert np.median(add_errs[40:]) < 0.35
     assert alphas[50:].mean() < 0.7

@@ -75,6 +75,21 @@ def test_rgbd_candidates_follow_the_measured_depth_and_survive_holes():
     assert np.all(t[:, 2] >= 2.0)
 
 
+def test_rgbd_candidates_skip_the_background_seen_past_the_object():
+    """Depth beyond the box scale's far end is the background around the object (a box 80 px
+    wide at f 500 holds an object of 0.112 m extent at z_box 0.7 m): those pixels count as
+    holes, so no candidate lands on the wall 3 m away (before: half of them did)."""
+    depth = np.full((480, 640), 3.0, np.float32)  # a wall
+    depth[65:95, 120:160] = 0.7  # the object, the central part of the box
+    s = CandidateSampler(box_extent=0.112, depth_offset=(0.0, 0.02))
+    _, t = s.sample(500, Frame(RGB, depth, K, BOX), np.random.default_rng(0))
+    assert np.all((t[:, 2] >= 0.7 - 1e-6) & (t[:, 2] <= 0.72 + 1e-6))
+    # nearer than the box scale is kept (an occluder, or an object whose box is partly hidden)
+    depth[:] = 0.4
+    _, t = s.sample(50, Frame(RGB, depth, K, BOX), np.random.default_rng(0))
+    assert np.all(t[:, 2] <= 0.42 + 1e-6)
+
+
 def test_boxes_partly_outside_the_image():
     depth = np.full((480, 640), 0.9, np.float32)
     box = (600.0, 450.0, 100.0, 100.0)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import numpy as np
+import time
 
 from chpf.benchmarks.track_bench import bench_method, format_table
 from chpf.bundle import Bundle
@@ -13,9 +13,14 @@ def test_bench_method_times_every_frame_and_prints_a_row(template_bundle, render
     bundle = Bundle.load(template_bundle)
     seq = rendered_sequence
     frames = (seq.rgb, seq.depth, seq.K, [seq.box(i) for i in range(len(seq))])
-    row = bench_method(Tracker.from_bundle(bundle, method="chpf"), frames, n_frames=6, warmup=2)
+    tracker = Tracker.from_bundle(bundle, method="chpf")
+    t0 = time.perf_counter()
+    row = bench_method(tracker, frames, n_frames=6, warmup=2)
+    call_ms = (time.perf_counter() - t0) * 1000.0
     assert 0 < row["median"] <= row["p90"] and row["wall"] > 0
-    assert np.isclose(row["fps"], 1000.0 / row["wall"])
+    # a timed frame holds the tracker's own stages and lasts less than the whole call's share
+    assert row["total"] <= row["wall"] < call_ms / 6
+    assert row["fps"] > 6 * 1000.0 / call_ms  # the 6 timed frames ran faster than the call
     assert row["network"] >= row["encode"] > 0 and 0 <= row["non_network_share"] < 1
     table = format_table({"chpf": row}).splitlines()
     assert "med ms" in table[0] and "p90 ms" in table[0]
