@@ -20,6 +20,7 @@ from chpf.tracking import (
     WeightCollapseWarning,
 )
 from chpf.tracking.filter_loop import FilterLoop
+from chpf.tracking.strategies import SRLConfig
 from chpf.tracking.types import CodebookScores
 
 GRID = RotationGrid.uniform(256)
@@ -51,7 +52,7 @@ def _filters(resampling="systematic"):
     )
     lik = _NanLikelihood()
     return [
-        ParticleFilter(lik, SRL(0.6), **common),
+        ParticleFilter(lik, SRL(SRLConfig(beta=0.6)), **common),
         RaoBlackwellisedFilter(lik, reset_threshold=-2.0, **common),
     ]
 
