@@ -53,6 +53,7 @@ class FilterLoop:
     def reset(self) -> None:
         """Forget the particles and the estimate (start of a new sequence)."""
         self.weights: np.ndarray = np.full(self.n, 1.0 / self.n)
+        self.fresh: np.ndarray = np.ones(self.n, dtype=bool)  # drawn by _draw at the last resample
         self.estimate: tuple[np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ hooks
@@ -138,6 +139,7 @@ class FilterLoop:
             parts.append(self._draw(frame, n_cand))
         self._assign(tuple(np.concatenate(arrays) for arrays in zip(*parts, strict=True)))
         self.weights = np.full(self.n, 1.0 / self.n)
+        self.fresh = np.arange(self.n) >= self.n - n_cand
 
     def _result(self, weighed: Weighed | None, stage_ms: dict[str, float]) -> TrackResult:
         est = self.estimate

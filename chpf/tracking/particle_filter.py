@@ -64,10 +64,12 @@ class ParticleFilter(FilterLoop):
         self.R = np.array(R, dtype=np.float64).reshape(self.n, 3, 3)
         self.t = np.array(t, dtype=np.float64).reshape(self.n, 3)
         self.weights = np.full(self.n, 1.0 / self.n)
+        self.fresh = np.zeros(self.n, dtype=bool)
 
     # ------------------------------------------------------------------ FilterLoop hooks
     def _initialise(self, frame: Frame) -> None:
         self.set_particles(*self.candidates.sample(self.n, frame, self.rng))
+        self.fresh = np.ones(self.n, dtype=bool)
 
     def _predict(self) -> None:
         assert self.R is not None and self.t is not None
@@ -85,7 +87,8 @@ class ParticleFilter(FilterLoop):
             add_ms(stage_ms, scores.stage_ms)
             weights = Weights.from_weights(scores.w)
             if m == len(betas) - 1:
-                alpha = float(np.clip(self.strategy.alpha(scores), 0.0, 1.0))
+                a = self.strategy.alpha(scores, weights.W, self.fresh)
+                alpha = float(np.clip(a, 0.0, 1.0))
                 sum_c = float("nan") if scores.C is None else float(np.nansum(scores.C))
                 return Weighed(weights, alpha, float(np.nansum(scores.L)), sum_c)
             t0 = time.perf_counter()

@@ -1,12 +1,14 @@
 """Reinvigoration strategies of the 6D particle filter: each decides alpha, the fraction of
 particles drawn from the candidate distribution at a frame's resampling.
 
-Every strategy has ``alpha(scores) -> float`` in [0, 1] and ``reset()`` (forget its state at
-the start of a sequence). Two attributes let a strategy change the core's loop without a
-special filter class: ``betas`` (annealing layers, one weighing per entry; the default (1.0,)
-is one ordinary weighing) with ``layer_decay`` (diffusion scale factor per layer), and
-``propose(frame, n, rng, likelihood)`` (where reinvigorated particles come from; None means
-phi_cand).
+Every strategy has ``alpha(scores, weights=None, fresh=None) -> float`` in [0, 1] (``weights``
+(N,): the frame's normalised importance weights, None when they collapsed; ``fresh`` (N,) bool:
+the particles drawn from phi_cand or a proposal at the previous resampling, None when unknown;
+only CH-PF uses them) and ``reset()`` (forget its state at the start of a sequence). Two
+attributes let a strategy change the core's loop without a special filter class: ``betas``
+(annealing layers, one weighing per entry; the default (1.0,) is one ordinary weighing) with
+``layer_decay`` (diffusion scale factor per layer), and ``propose(frame, n, rng, likelihood)``
+(where reinvigorated particles come from; None means phi_cand).
 
 A strategy with options takes its config dataclass (defined next to it; the defaults live
 there and nowhere else); chpf.tracking.methods registers each one under its method name.
@@ -39,8 +41,10 @@ class Strategy:
     betas: tuple[float, ...] = (1.0,)
     layer_decay: float = 1.0
 
-    def alpha(self, scores: Scores) -> float:
-        """Reinvigoration rate for this frame's resampling."""
+    def alpha(
+        self, scores: Scores, weights: np.ndarray | None = None, fresh: np.ndarray | None = None
+    ) -> float:
+        """Reinvigoration rate for this frame's resampling (see the module docstring)."""
         return 0.0
 
     def reset(self) -> None:
@@ -74,7 +78,9 @@ class FixedRate(Strategy):
     def __init__(self, config: FixedConfig | None = None) -> None:
         self.rate = (config or FixedConfig()).rate
 
-    def alpha(self, scores: Scores) -> float:
+    def alpha(
+        self, scores: Scores, weights: np.ndarray | None = None, fresh: np.ndarray | None = None
+    ) -> float:
         return self.rate
 
 
@@ -83,16 +89,27 @@ C_MODES: tuple[str, ...] = typing.get_args(CMode)
 """Where C comes from: the learned classifier, C_depth, their mean, or nowhere (C = None)."""
 
 
+CHPFSums = Literal["paper", "belief", "weighted"]
+CHPF_SUMS: tuple[str, ...] = typing.get_args(CHPFSums)
+"""Which particles CH-PF's alpha = S_C / (S_C + S_L) sums over: "paper" every particle of the
+set, as in the paper's figure (also those just drawn from phi_cand); "belief" only those
+resampled from the belief at the previous frame (all when every particle is fresh); "weighted"
+every particle weighed by its normalised importance weight w_i: S_X = sum_i w_i X_i = E_w[X]
+(all alike when the weights collapsed)."""
+
+
 @dataclass
 class CHPFConfig(Section):
     """CH-PF: c_mode, where the Counter-Hypothetical likelihood C comes from (C_MODES; depth
-    and both need RGB-D)."""
+    and both need RGB-D); sums, which particles alpha's sums run over (CHPF_SUMS)."""
 
     c_mode: CMode = "learned"
+    sums: CHPFSums = "paper"
 
 
 class CHPF(Strategy):
-    """Counter-Hypothetical PF: alpha = sum C / (sum C + sum L).
+    """Counter-Hypothetical PF: alpha = S_C / (S_C + S_L), the sums as chosen by
+    ``config.sums`` (CHPF_SUMS; "paper": sum C / (sum C + sum L) over every particle).
 
     When both sums are 0 (no evidence for nor against any particle) alpha = 1.
     """
@@ -102,11 +119,23 @@ class CHPF(Strategy):
     def __init__(self, config: CHPFConfig | None = None) -> None:
         self.config = config or CHPFConfig()
 
-    def alpha(self, scores: Scores) -> float:
+    def _counts(self, n: int, weights: np.ndarray | None, fresh: np.ndarray | None) -> np.ndarray:
+        """What each of the n particles counts in the sums (n,)."""
+        if self.config.sums == "weighted" and weights is not None:
+            return _finite(weights).clip(min=0.0)
+        if self.config.sums == "belief" and fresh is not None and not np.all(fresh):
+            return (~np.asarray(fresh, dtype=bool)).astype(np.float64)
+        return np.ones(n)
+
+    def alpha(
+        self, scores: Scores, weights: np.ndarray | None = None, fresh: np.ndarray | None = None
+    ) -> float:
         if scores.C is None:
             raise ConfigError("CH-PF needs a Counter-Hypothetical likelihood C (none was given)")
-        sum_c = float(_finite(scores.C).clip(min=0.0).sum())
-        sum_l = float(_finite(scores.L).clip(min=0.0).sum())
+        C = _finite(scores.C).clip(min=0.0)
+        k = self._counts(C.shape[0], weights, fresh)
+        sum_c = float(k @ C)
+        sum_l = float(k @ _finite(scores.L).clip(min=0.0))
         total = sum_c + sum_l
         return 1.0 if total <= 0.0 else sum_c / total
 
@@ -129,7 +158,9 @@ class SRL(Strategy):
     def __init__(self, config: SRLConfig | None = None) -> None:
         self.beta = (config or SRLConfig()).beta
 
-    def alpha(self, scores: Scores) -> float:
+    def alpha(
+        self, scores: Scores, weights: np.ndarray | None = None, fresh: np.ndarray | None = None
+    ) -> float:
         mean_l = float(_finite(scores.L).mean()) if np.size(scores.L) else 0.0
         return float(np.clip(1.0 - mean_l / self.beta, 0.0, 1.0))
 
@@ -168,7 +199,9 @@ class AugMCL(Strategy):
         self.w_slow = None
         self.w_fast = None
 
-    def alpha(self, scores: Scores) -> float:
+    def alpha(
+        self, scores: Scores, weights: np.ndarray | None = None, fresh: np.ndarray | None = None
+    ) -> float:
         w_avg = float(_finite(scores.L).mean()) if np.size(scores.L) else 0.0
         if self.w_slow is None or self.w_fast is None:
             self.w_slow = self.w_fast = w_avg
@@ -231,7 +264,9 @@ class E2E(Strategy):
         self.sigma_t = np.asarray(config.sigma_t, dtype=np.float64)
         self.sigma_r = float(config.sigma_r)
 
-    def alpha(self, scores: Scores) -> float:
+    def alpha(
+        self, scores: Scores, weights: np.ndarray | None = None, fresh: np.ndarray | None = None
+    ) -> float:
         return self.rate
 
     def propose(

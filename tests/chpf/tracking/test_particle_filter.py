@@ -23,7 +23,14 @@ from chpf.tracking import (
     Scores,
     WeightCollapseWarning,
 )
-from chpf.tracking.strategies import AnnealingConfig, SRLConfig
+from chpf.tracking.strategies import (
+    CHPF_SUMS,
+    AnnealingConfig,
+    CHPFConfig,
+    FixedConfig,
+    FixedRate,
+    SRLConfig,
+)
 
 
 def make_filter(strategy, likelihood, seed=0, n=50):
@@ -103,9 +110,10 @@ def test_same_seed_same_poses(sequence):
     assert not np.allclose(outs[0], outs[2])
 
 
-def test_chpf_recovers_after_a_forced_collapse_onto_a_wrong_pose(sequence):
+@pytest.mark.parametrize("sums", CHPF_SUMS)
+def test_chpf_recovers_after_a_forced_collapse_onto_a_wrong_pose(sequence, sums):
     oracle = OracleLikelihood()
-    filt = make_filter(CHPF(), oracle)
+    filt = make_filter(CHPF(CHPFConfig(sums=sums)), oracle)
     errs, res = run(filt, oracle, sequence, range(30))
     alpha_tracking = np.mean([r.alpha for r in res[-10:]])
     assert errs[-5:, 0].mean() < 0.02
@@ -117,6 +125,15 @@ def test_chpf_recovers_after_a_forced_collapse_onto_a_wrong_pose(sequence):
     assert res2[0].alpha > 0.8 > alpha_tracking
     assert errs2[0, 1] > 45.0  # the estimate is wrong right after the collapse
     assert errs2[-10:, 0].mean() < 0.02 and errs2[-10:, 1].mean() < 20.0
+
+
+def test_the_filter_marks_the_particles_it_just_reinvigorated(sequence):
+    oracle = OracleLikelihood()
+    filt = make_filter(FixedRate(FixedConfig(rate=0.2)), oracle)
+    run(filt, oracle, sequence, range(1))
+    assert filt.fresh.sum() == 10 and filt.fresh[-10:].all()  # the proposal's share, at the end
+    filt.set_particles(filt.R, filt.t)
+    assert not filt.fresh.any()
 
 
 def test_no_reinvigoration_does_not_recover_from_the_same_collapse(sequence):

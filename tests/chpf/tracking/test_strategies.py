@@ -9,8 +9,10 @@ from chpf.errors import ConfigError
 from chpf.tracking import CHPF, E2E, SRL, Annealing, AugMCL, FixedRate, NoReinvigoration, Scores
 from chpf.tracking.oracle import OracleLikelihood
 from chpf.tracking.strategies import (
+    CHPF_SUMS,
     AnnealingConfig,
     AugMCLConfig,
+    CHPFConfig,
     E2EConfig,
     FixedConfig,
     SRLConfig,
@@ -33,6 +35,36 @@ def test_chpf_alpha_is_sum_c_over_sum_c_plus_sum_l():
     assert CHPF().alpha(scores(L=[0, 0], C=[0, 0])) == 1.0  # no evidence at all
     # NaN entries count as 0
     assert CHPF().alpha(scores(L=[0.5, np.nan], C=[0.5, np.nan])) == pytest.approx(0.5)
+
+
+W_FIXED = np.array([0.4, 0.3, 0.1, 0.0, 0.2])  # normalised importance weights
+FRESH = np.array([False, False, True, True, False])  # just drawn from phi_cand
+
+
+def chpf(sums: str) -> CHPF:
+    return CHPF(CHPFConfig(sums=sums))
+
+
+def test_chpf_paper_sums_ignore_weights_and_freshness():
+    assert CHPF_SUMS == ("paper", "belief", "weighted") and CHPFConfig().sums == "paper"
+    assert chpf("paper").alpha(scores(), W_FIXED, FRESH) == pytest.approx(3.0 / (3.0 + 1.8))
+
+
+def test_chpf_belief_sums_run_over_the_particles_resampled_from_the_belief():
+    # particles 0, 1, 4: sum C = 0.1 + 0.4 + 0.6, sum L = 0.9 + 0.5 + 0.3
+    assert chpf("belief").alpha(scores(), W_FIXED, FRESH) == pytest.approx(1.1 / (1.1 + 1.7))
+    # a set that is all fresh (first frame, full reset) sums over every particle
+    all_fresh = np.ones(5, dtype=bool)
+    assert chpf("belief").alpha(scores(), W_FIXED, all_fresh) == pytest.approx(3.0 / 4.8)
+    assert chpf("belief").alpha(scores(), W_FIXED, None) == pytest.approx(3.0 / 4.8)
+
+
+def test_chpf_weighted_sums_are_expectations_under_the_importance_weights():
+    e_c = 0.4 * 0.1 + 0.3 * 0.4 + 0.1 * 0.9 + 0.0 * 1.0 + 0.2 * 0.6
+    e_l = 0.4 * 0.9 + 0.3 * 0.5 + 0.1 * 0.1 + 0.0 * 0.0 + 0.2 * 0.3
+    assert chpf("weighted").alpha(scores(), W_FIXED, FRESH) == pytest.approx(e_c / (e_c + e_l))
+    # collapsed weights (None): every particle counts alike
+    assert chpf("weighted").alpha(scores(), None, FRESH) == pytest.approx(3.0 / 4.8)
 
 
 def test_chpf_without_c_is_a_config_error():

@@ -44,6 +44,7 @@ def test_overrides_and_refusals(tmp_path):
     assert cfg.filter.n_particles == 20 and cfg.srl.beta == 0.5
     assert cfg.candidates.z_range == (0.3, 2.0)
     assert make_config(CONFIGS / "track_default.yaml", ["srl.beta=0.5"]).srl.beta == 0.5
+    assert make_config(None, ["chpf.sums=weighted"]).chpf.sums == "weighted"
     bad = tmp_path / "bad.yaml"
     bad.write_text("motion:\n  sigma_t: 0.01\nbogus: 3\n")
     with pytest.raises(ConfigError, match="bogus"):
@@ -56,6 +57,7 @@ def test_overrides_and_refusals(tmp_path):
         {"candidates": {"z_range": [2.0, 1.0]}},
         {"fixed": {"rate": 1.5}},
         {"chpf": {"c_mode": "maybe"}},
+        {"chpf": {"sums": "everything"}},
         {"runtime": {"spin": "yes"}},
         {"e2e": {"sigma_t": [0.1, 0.1]}},
         {"candidates": {"box_uv_fraction": 0.0}},
