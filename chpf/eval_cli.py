@@ -58,7 +58,15 @@ from chpf.model_points import POINT_SOURCES, model_points
 from chpf.outdir import lock_output_path
 from chpf.results import ResultRow, read_results_csv
 
-__all__ = ["InstanceErrors", "cli", "evaluate", "format_table", "instance_errors", "main", "object_errors"]
+__all__ = [
+    "InstanceErrors",
+    "cli",
+    "evaluate",
+    "format_table",
+    "instance_errors",
+    "main",
+    "object_errors",
+]
 
 CHUNK = 256  # pose pairs per metrics call (bounds memory: CHUNK x points x 3)
 

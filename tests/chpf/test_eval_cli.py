@@ -239,7 +239,7 @@ def test_model_points_sources(dataset: Path, tmp_path: Path) -> None:
         evaluate(dataset, two, "test", points=xyz)
     bad = tmp_path / "bad.xyz"
     bad.write_text("1 2\n3 4\n")
-    with pytest.raises(DatasetError, match="bad.xyz: not a point file"):
+    with pytest.raises(DatasetError, match=r"bad\.xyz: not a point file"):
         evaluate(dataset, rows, "test", points=bad)
 
 
