@@ -185,5 +185,5 @@ def test_accuracy_counts_errors_below_their_threshold():
     # 0.01 < 0.05 yes; nan (missing) no; 0.2 < 0.5 yes; 0.05 < 0.05 no (strict, as BOP)
     e = [0.01, np.nan, 0.2, 0.05]
     assert metrics.accuracy(e, [0.05, 0.05, 0.5, 0.05]) == pytest.approx(50.0)
-    assert metrics.accuracy(e, 0.1) == pytest.approx(25.0)
+    assert metrics.accuracy(e, 0.04) == pytest.approx(25.0)  # only 0.01
     assert metrics.accuracy([], 0.1) == 0.0
