@@ -242,3 +242,26 @@ def test_reacquisition_times() -> None:
     ok = np.array([1, 1, 0, 0, 1, 0, 1, 1, 0, 0], bool)
     assert reacquisition(ok) == ([2, 1], 1)  # lost at 2 (back at 4), at 5 (back at 6), at 8
     assert reacquisition(np.zeros(5, bool)) == ([], 0)  # never tracked: no loss
+
+
+def test_bench_imports_chpf_and_data_gen_only() -> None:
+    """bench sits beside data_gen: it may use chpf and data_gen, never torch or training."""
+    import ast
+
+    import bench
+
+    forbidden = {"torch", "torchvision", "lightning", "onnx", "training", "export"}
+    for path in Path(bench.__file__).parent.rglob("*.py"):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        roots = {
+            a.name.split(".")[0]
+            for n in ast.walk(tree)
+            if isinstance(n, ast.Import)
+            for a in n.names
+        }
+        roots |= {
+            n.module.split(".")[0]
+            for n in ast.walk(tree)
+            if isinstance(n, ast.ImportFrom) and n.level == 0 and n.module
+        }
+        assert not roots & forbidden, (path.name, roots & forbidden)
