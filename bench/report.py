@@ -276,11 +276,23 @@ def plot_sequence(fig: Figures, key: str) -> bytes:
     return _png(f)
 
 
-def _outline(mask: np.ndarray) -> list:
+def _bgr(rgba: tuple) -> tuple[int, int, int]:
+    return tuple(int(255 * v) for v in rgba[2::-1])  # type: ignore[return-value]
+
+
+def _draw_outline(img, V, faces, R, t, K, colour) -> None:
+    """Draw on img (BGR) the outline of the mesh (V (M, 3) m, faces) at pose R, t."""
     import cv2
 
+    from chpf.geometry import project_points
+
+    X = V @ R.T + t
+    if not np.all(X[:, 2] > 0):
+        return
+    mask = np.zeros(img.shape[:2], np.uint8)
+    cv2.fillPoly(mask, list(np.round(project_points(X, K)[faces]).astype(np.int32)), 1)
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    return contours
+    cv2.drawContours(img, contours, -1, colour, 1, cv2.LINE_AA)
 
 
 def plot_overlays(fig: Figures, seq, frames: list[int], modality: str) -> bytes | None:
@@ -288,7 +300,6 @@ def plot_overlays(fig: Figures, seq, frames: list[int], modality: str) -> bytes 
     import cv2
 
     from chpf.bop import BopDataset, read_results_csv
-    from chpf.geometry import project_points
 
     root = Path(seq.root)
     if not root.is_dir():
@@ -310,27 +321,25 @@ def plot_overlays(fig: Figures, seq, frames: list[int], modality: str) -> bytes 
     colours = plt.get_cmap("tab10")
     tiles = []
     for im in frames:
-        img = np.ascontiguousarray(scene.rgb(im)[..., ::-1])
-        K = scene.camera(im).K
+        img = scene.rgb(im)[..., ::-1]
+        zoom = max(1, round(480 / img.shape[1]))  # small frames are shown larger
+        img = np.ascontiguousarray(np.repeat(np.repeat(img, zoom, 0), zoom, 1))
+        K = scene.camera(im).K * np.array([[zoom], [zoom], [1.0]])
+        K[:2, 2] += (zoom - 1) / 2.0  # pixel centres of the enlarged image
+        gt = next((p for p in scene.gt.get(im, []) if p.obj_id == seq.obj_id), None)
+        if gt is not None:
+            _draw_outline(img, V, Fc, gt.R, gt.t, K, (255, 255, 255))
         for i, m in enumerate(poses):
-            if im not in poses[m]:
-                continue
-            R, t = poses[m][im]
-            X = V @ R.T + t
-            mask = np.zeros(img.shape[:2], np.uint8)
-            if np.all(X[:, 2] > 0):
-                pts = np.round(project_points(X, K)[Fc]).astype(np.int32)
-                cv2.fillPoly(mask, list(pts), 1)
-            c = tuple(int(255 * v) for v in colours(i % 10)[2::-1])
-            cv2.drawContours(img, _outline(mask), -1, c, 1, cv2.LINE_AA)
+            if im in poses[m]:
+                _draw_outline(img, V, Fc, *poses[m][im], K, _bgr(colours(i % 10)))
         cv2.putText(img, f"frame {im}", (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255))
         tiles.append(img)
     if not tiles:
         return None
     legend = np.zeros((16, sum(t.shape[1] for t in tiles), 3), np.uint8)
     x = 4
-    for i, m in enumerate(poses):
-        c = tuple(int(255 * v) for v in colours(i % 10)[2::-1])
+    for i, m in enumerate(["truth", *poses]):
+        c = (255, 255, 255) if i == 0 else _bgr(colours((i - 1) % 10))
         cv2.putText(legend, m, (x, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, c)
         x += 10 + 8 * len(m)
     strip = np.concatenate([np.concatenate(tiles, axis=1), legend], axis=0)

@@ -77,6 +77,8 @@ def resolve_bundles(suite: Suite) -> list[BundleRef]:
     for m in suite.meshes:
         obj = get_object(m, unit=suite.mesh_unit)
         meshes[object_fingerprint(obj)] = m
+    if not paths:
+        raise BundleError(f"{bundles_dir()}: no shipped bundle; pass --bundles BUNDLE_DIR")
     for p in dict.fromkeys(paths):
         info = Bundle.load(p, threads=1).obj_info
         source = None
