@@ -73,10 +73,11 @@ def test_quick_suite_report_is_scored_as_computed_by_hand(quick: Path) -> None:
         assert (rep / name).is_file(), name
     assert list(rep.glob("sequence_*.png"))
     md = (rep / "report.md").read_text()
-    assert "| chpf | rgb |" in md and "| srl | rgb |" in md
+    assert "| chpf | rgb |" in md and "| srl | rgbd |" in md
     suite = json.loads((quick / "suite.json").read_text())
     jobs = sorted((quick / "jobs").iterdir())
-    assert len(jobs) == 2 * len(suite["sequences"]["occlusion"])  # 2 methods x 1 scene/level
+    levels = len(suite["sequences"]["occlusion"])
+    assert len(jobs) == 2 * 2 * levels  # 2 methods x 2 modalities x 1 scene per level
     # independent scoring of chpf's ADD-S AUC on the heavy sequence: its result CSV, the
     # model's vertices read with trimesh, brute-force ADD-S, the toolbox's VOCap transcription
     seqs = json.loads((quick / "sequences.json").read_text())
