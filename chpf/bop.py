@@ -17,8 +17,9 @@ Errors: malformed or incomplete JSON -> ``BopFormatError``; missing files or fol
 same frame -> ``ImageSizeError``. Each message is one line naming the file.
 
 Size rule: if a camera entry has ``width``/``height`` (not in ``ycbv``, allowed here) the image
-must have exactly that size; in any case the principal point must lie inside the image, and the
-rgb, depth and mask images of one frame must have the same size.
+must have exactly that size; in any case its size must be within 20 % of (2 cx + 1, 2 cy + 1)
+(``chpf.geometry.check_image_size``), and the rgb, depth and mask images of one frame must have
+the same size.
 
 Results CSV and detections live in ``chpf.results`` and ``chpf.detections`` and are re-exported.
 """
@@ -39,6 +40,7 @@ import numpy as np
 from chpf.atomic import atomic_write_bytes, atomic_write_text
 from chpf.detections import read_detections, write_detections
 from chpf.errors import BopFormatError, DatasetError, ImageSizeError
+from chpf.geometry import check_image_size
 from chpf.results import ResultRow, ResultsAppender, read_results_csv, write_results_csv
 
 __all__ = [
@@ -713,11 +715,10 @@ class BopScene:
             raise ImageSizeError(
                 f"{path}: image is {w}x{h} but the camera says {cam.width}x{cam.height}"
             )
-        cx, cy = float(cam.K[0, 2]), float(cam.K[1, 2])
-        if not (0 <= cx < w and 0 <= cy < h):
-            raise ImageSizeError(
-                f"{path}: principal point ({cx:g}, {cy:g}) lies outside the {w}x{h} image"
-            )
+        try:
+            check_image_size(w, h, cam.K)
+        except ImageSizeError as err:
+            raise ImageSizeError(f"{path}: {err}") from None
         for other in others:
             size = image_size(other)
             if size is not None and (int(size[0]), int(size[1])) != (h, w):

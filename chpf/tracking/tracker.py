@@ -18,6 +18,7 @@ import numpy as np
 
 from chpf.bundle import Bundle
 from chpf.errors import BundleError, ConfigError, ImageSizeError
+from chpf.geometry import check_image_size
 from chpf.tracking.bundle_likelihood import BundleLikelihood
 from chpf.tracking.candidates import CandidateSampler
 from chpf.tracking.codebook_candidates import CodebookRotations
@@ -41,7 +42,8 @@ def limit_library_threads(n: int) -> None:
 
 
 def check_frame(rgb: np.ndarray, depth: np.ndarray | None, K: np.ndarray) -> np.ndarray:
-    """Validate an input frame; returns K as (3,3) float64. ImageSizeError on a mismatch."""
+    """Validate an input frame; returns K as (3,3) float64. ImageSizeError on a mismatch (also
+    when the image's size is not about (2 cx + 1, 2 cy + 1): see ``check_image_size``)."""
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise ImageSizeError(f"rgb image must be (H,W,3) uint8, got {rgb.shape} {rgb.dtype}")
@@ -51,12 +53,7 @@ def check_frame(rgb: np.ndarray, depth: np.ndarray | None, K: np.ndarray) -> np.
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise ImageSizeError(f"K must be a finite (3,3) matrix with positive focals, got {K}")
-    cx, cy = K[0, 2], K[1, 2]
-    if not (0 <= cx < w and 0 <= cy < h):
-        raise ImageSizeError(
-            f"principal point ({cx:g}, {cy:g}) of K lies outside the {w}x{h} image "
-            "(image size and K disagree)"
-        )
+    check_image_size(w, h, K)
     if depth is not None:
         d = np.asarray(depth)
         if d.shape != (h, w):

@@ -256,8 +256,13 @@ def test_tracker_same_seed_same_poses_and_reset(bundle, rendered_sequence):
 def test_tracker_rejects_bad_input(bundle, rendered_sequence, tmp_path):
     seq = rendered_sequence
     tr = Tracker.from_bundle(bundle, method="chpf")
-    with pytest.raises(ImageSizeError):  # K of a 640x480 camera on a 320x240 image
+    with pytest.raises(ImageSizeError):  # principal point outside the 320x240 image
         tr.step(seq.rgb[0], K=np.array([[500.0, 0, 400], [0, 500, 300], [0, 0, 1]]), box=None)
+    # the K of a 640x480 camera on the 320x240 image: its principal point (319.5, 239.5) still
+    # falls inside, and the pose came out 0.8 m off before the size was checked against K
+    K_vga = np.array([[600.0, 0, 319.5], [0, 600, 239.5], [0, 0, 1]])
+    with pytest.raises(ImageSizeError, match=r"image is 320x240 .* implies about 640x480"):
+        tr.step(seq.rgb[0], K=K_vga, box=seq.box(0))
     with pytest.raises(ImageSizeError):
         tr.step(seq.rgb[0], depth=np.zeros((10, 10), np.float32), K=seq.K)
     with pytest.raises(ImageSizeError):
