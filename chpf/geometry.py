@@ -309,9 +309,9 @@ def check_image_size(width: int, height: int, K: np.ndarray, tol: float = IMAGE_
     """
     cx, cy = float(K[0, 2]), float(K[1, 2])
     want_w, want_h = 2.0 * cx + 1.0, 2.0 * cy + 1.0
-    if not (
-        abs(width - want_w) <= tol * max(want_w, 1.0) and abs(height - want_h) <= tol * max(want_h, 1.0)
-    ):
+    off_w = abs(width - want_w) / max(want_w, 1.0)
+    off_h = abs(height - want_h) / max(want_h, 1.0)
+    if not (off_w <= tol and off_h <= tol):
         raise ImageSizeError(
             f"image is {width}x{height} but the principal point ({cx:g}, {cy:g}) of K implies "
             f"about {want_w:.0f}x{want_h:.0f} (2 cx + 1, 2 cy + 1; more than {tol:.0%} off): "
