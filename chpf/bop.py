@@ -759,6 +759,24 @@ class BopDataset:
             self._models_info = read_models_info(self.models_info_path)
         return self._models_info
 
+    @property
+    def sequences_info_path(self) -> Path:
+        return self.root / SEQUENCES_INFO
+
+    def recorded_fingerprints(self) -> dict[int, str]:
+        """``{obj_id: mesh fingerprint}`` recorded by ``chpf-gen-data sequences`` in
+        ``sequences_info.json`` (``chpf.objects.object_fingerprint``); {} when there is none."""
+        path = self.sequences_info_path
+        if not path.is_file():
+            return {}
+        data = _load_json(path)
+        objects = data.get("objects") if isinstance(data, dict) else None
+        return {
+            o["obj_id"]: str(o["fingerprint"])
+            for o in (objects if isinstance(objects, list) else [])
+            if isinstance(o, dict) and isinstance(o.get("obj_id"), int) and o.get("fingerprint")
+        }
+
     def model_path(self, obj_id: int) -> Path:
         """``ROOT/models/obj_{obj_id:06d}.ply``."""
         return model_path(self.root, obj_id)

@@ -163,6 +163,7 @@ def track(
             f"{bundle.path}: bundle is for object {bundle.obj_info.name!r} (obj_id {obj_id}) but "
             f"{dataset} has obj_ids {sorted(ids)}"
         )
+    bundle.check_dataset(ds)
     cfg = tracking_config(args)
     trackers = {
         m: Tracker(bundle, method=m, modality=args.modality, seed=args.seed, config=cfg)

@@ -171,6 +171,39 @@ def test_refusals(template_bundle, dataset, tmp_path, capsys):
     assert code == 2 and len(err) == 1 and err[0].startswith("error: ")
 
 
+def test_bundle_of_another_object_with_the_same_obj_id_is_refused(
+    template_bundle, dataset, tmp_path, capsys
+):
+    """The dataset's obj_id 2 is another object: a diameter 5 % or more off the manifest's, or
+    (where chpf-gen-data recorded one) another mesh fingerprint, is refused naming both."""
+    other = tmp_path / "other_ds"
+    shutil.copytree(dataset, other)
+    info_path = other / "models" / "models_info.json"
+    info = json.loads(info_path.read_text())
+    info["2"]["diameter"] = 152.6  # mm; the box bundle's is 319.7
+    info_path.write_text(json.dumps(info))
+    argv = ["--bundle", template_bundle, "--dataset", other, "--out", tmp_path / "o"]
+    with pytest.raises(BundleError) as err:
+        main([str(a) for a in argv])
+    msg = str(err.value)
+    assert "obj_id 2" in msg and "319.7 mm" in msg and "152.6 mm" in msg
+    assert str(template_bundle / "manifest.json") in msg and str(info_path) in msg
+    assert not (tmp_path / "o").exists()
+
+    info["2"]["diameter"] = 319.7 * 1.03  # within the tolerance: the fingerprint decides
+    info_path.write_text(json.dumps(info))
+    seq_info_path = other / "sequences_info.json"
+    seq_info = json.loads(seq_info_path.read_text())
+    target = next(o for o in seq_info["objects"] if o["obj_id"] == 2)
+    target["fingerprint"] = "0" * 40
+    seq_info_path.write_text(json.dumps(seq_info))
+    with pytest.raises(BundleError, match=r"fingerprint 0000000000 but .* has 127c1257ba"):
+        main([str(a) for a in argv])
+    seq_info_path.unlink()  # no fingerprint recorded: the diameter agrees, tracking goes on
+    code, _ = _run(capsys, *argv, "--no-progress", "--no-plot")
+    assert code == 0
+
+
 def _console_script(argv: list[str], capsys) -> tuple[int, list[str]]:
     """Exit code and stderr lines of the chpf-track console script run with ``argv``."""
     saved = sys.argv
