@@ -493,9 +493,11 @@ def write_depth(path: str | Path, depth_m: np.ndarray, depth_scale: float = 0.1)
         raise ValueError(f"{path}: depth must be (H,W), got {d.shape}")
     raw = np.where(np.isfinite(d) & (d > 0), d, 0.0) * MM / depth_scale
     raw = np.rint(raw)
-    if raw.max(initial=0) > np.iinfo(np.uint16).max:
-        raise ValueError(
-            f"{path}: depth {d.max():.3f} m exceeds uint16 with depth_scale {depth_scale} mm"
+    top = np.iinfo(np.uint16).max
+    if raw.max(initial=0) > top:
+        raise DatasetError(
+            f"{path}: depth {d.max():.3f} m exceeds uint16 with depth_scale {depth_scale} mm "
+            f"(at most {top * depth_scale / MM:.2f} m; raise depth.depth_scale)"
         )
     _encode(Path(path), raw.astype(np.uint16))
 
