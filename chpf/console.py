@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import functools
 import sys
 from collections.abc import Callable
@@ -11,7 +12,8 @@ from chpf.errors import ChpfError
 
 
 def run_main(main: Callable[[list[str] | None], int]) -> Callable[[], None]:
-    """Wrap ``main(argv) -> exit code`` for a console script: ChpfError -> one line, exit 2."""
+    """Wrap ``main(argv) -> exit code`` for a console script: ChpfError -> one line, exit 2; a
+    full disk (ENOSPC, EDQUOT) -> one line, exit 2."""
 
     @functools.wraps(main)
     def cli() -> None:
@@ -19,6 +21,16 @@ def run_main(main: Callable[[list[str] | None], int]) -> Callable[[], None]:
             code = main(None)
         except ChpfError as err:
             print(f"error: {err}", file=sys.stderr)
+            sys.exit(2)
+        except OSError as err:
+            if err.errno not in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            where = f"{err.filename}: " if err.filename else ""
+            print(
+                f"error: {where}{str(err.strerror).lower()} (disk full); free some space and "
+                "rerun (finished outputs are kept)",
+                file=sys.stderr,
+            )
             sys.exit(2)
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)

@@ -41,7 +41,7 @@ from chpf.atomic import atomic_write_text
 from chpf.bop import BopDataset
 from chpf.console import run_main, scene_list
 from chpf.errors import DatasetError
-from chpf.outdir import lock_output_path
+from chpf.outdir import check_out_file, lock_output_path
 from chpf.results import ResultRow, read_results_csv
 
 __all__ = ["cli", "evaluate", "format_table", "main", "object_errors"]
@@ -212,7 +212,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--scenes", type=scene_list, default=None, help="e.g. 48,49 (default all)")
     parser.add_argument("--json", type=Path, default=None, help="also write the report as JSON")
     args = parser.parse_args(argv)
-
+    if args.json is not None:
+        check_out_file(args.json)  # before the work, not after it
     rows = read_results_csv(args.results)
     report = evaluate(args.dataset, rows, split=args.split, scenes=args.scenes)
     print(format_table(report))

@@ -23,7 +23,7 @@ from pathlib import Path
 from chpf.console import run_main
 from chpf.errors import ConfigError
 from chpf.objects import MESH_UNITS
-from chpf.outdir import lock_output_path
+from chpf.outdir import check_out_dir, check_out_file, lock_output_path
 from data_gen import config as C
 
 
@@ -266,6 +266,10 @@ def _cmd_contact_sheet(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point (argv without the program name)."""
     args = build_parser().parse_args(argv)
+    if args.cmd in ("pairs", "ae", "sequences"):
+        check_out_dir(args.out)
+    elif args.cmd == "contact-sheet":
+        check_out_file(args.out)
     cmd = {
         "pairs": _cmd_samples,
         "ae": _cmd_samples,

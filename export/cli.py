@@ -13,7 +13,7 @@ import time
 from chpf import __version__
 from chpf.console import run_main
 from chpf.objects import MESH_UNITS
-from chpf.outdir import lock_output_path
+from chpf.outdir import check_out_dir, lock_output_path
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -55,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the export; returns 0 (errors raise ChpfError, printed as one line by ``cli``)."""
     args = build_parser().parse_args(argv)
+    check_out_dir(args.out)  # before the checkpoints are read and the codebook rendered
     # heavy imports (torch) after argument parsing so --help stays fast
     from chpf.config_schema import load
     from export.config import ExportConfig
