@@ -122,7 +122,7 @@ def _is_header(line: str, path: str | Path) -> bool:
             )
     if len(cols) > len(want):
         raise ResultsFormatError(
-            f"{path}:1: header is wrong: extra columns {cols[len(want):]} (the header is {HEADER})"
+            f"{path}:1: header is wrong: extra columns {cols[len(want) :]} (the header is {HEADER})"
         )
     return True
 
