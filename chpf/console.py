@@ -6,6 +6,7 @@ import argparse
 import errno
 import functools
 import sys
+import warnings
 from collections.abc import Callable
 
 from chpf.errors import ChpfError
@@ -13,10 +14,11 @@ from chpf.errors import ChpfError
 
 def run_main(main: Callable[[list[str] | None], int]) -> Callable[[], None]:
     """Wrap ``main(argv) -> exit code`` for a console script: ChpfError -> one line, exit 2; a
-    full disk (ENOSPC, EDQUOT) -> one line, exit 2."""
+    full disk (ENOSPC, EDQUOT) -> one line, exit 2; warnings print as one line each."""
 
     @functools.wraps(main)
     def cli() -> None:
+        warnings.formatwarning = one_line_warning
         try:
             code = main(None)
         except ChpfError as err:
@@ -38,6 +40,13 @@ def run_main(main: Callable[[list[str] | None], int]) -> Callable[[], None]:
         sys.exit(code or 0)
 
     return cli
+
+
+def one_line_warning(
+    message: Warning | str, category: type[Warning], filename: str, lineno: int, line=None
+) -> str:
+    """``warnings.formatwarning`` of the console scripts: ``warning: <message>``, one line."""
+    return f"warning: {message}\n"
 
 
 def scene_list(text: str) -> list[int]:

@@ -19,6 +19,7 @@ import numpy as np
 from chpf.bundle import Bundle
 from chpf.errors import BundleError, ConfigError, ImageSizeError
 from chpf.geometry import check_image_size
+from chpf.tracking.boxes import BoxChecker
 from chpf.tracking.bundle_likelihood import BundleLikelihood
 from chpf.tracking.candidates import CandidateSampler
 from chpf.tracking.codebook_candidates import CodebookRotations
@@ -132,6 +133,8 @@ class Tracker:
         self.filter: Filter = make_filter(
             method, self.likelihood, cfg, self.candidates, np.random.default_rng(self.seed)
         )
+        self.boxes = BoxChecker("Tracker.step")  # warns once per tracker
+        self.frame = 0  # frames stepped since the last reset
 
     @classmethod
     def from_bundle(
@@ -166,6 +169,7 @@ class Tracker:
         """Start a new sequence (optionally with a new seed: an int or a tuple of ints)."""
         if seed is not None:
             self.seed = seed
+        self.frame = 0
         self.filter.reset()
         self.filter.rng = np.random.default_rng(self.seed)  # type: ignore[attr-defined]
 
@@ -177,11 +181,14 @@ class Tracker:
         box: Box | None = None,
     ) -> TrackResult:
         """One frame: rgb (H,W,3) uint8, depth (H,W) float32 m or None (non-finite or negative
-        values are missing, as 0 is), K (3,3), box (x,y,w,h) pixels or None (predict only).
-        Returns a TrackResult (pose R, t metres, alpha, ...)."""
+        values are missing, as 0 is), K (3,3), box (x,y,w,h) pixels or None (predict only; an
+        invalid box too, warned once: see ``chpf.tracking.boxes.BoxChecker``; text is an
+        InputError). Returns a TrackResult (pose R, t metres, alpha, ...)."""
         K_arr = check_frame(rgb, depth, K)  # type: ignore[arg-type]
+        checked = self.boxes.check(box, f"frame {self.frame}")
         if self.modality == "rgb":
             depth = None
         elif depth is not None:
             depth = depth_in_metres(depth)
-        return self.filter.step(Frame(rgb=rgb, depth=depth, K=K_arr, box=box))
+        self.frame += 1
+        return self.filter.step(Frame(rgb=rgb, depth=depth, K=K_arr, box=checked))

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -326,3 +328,38 @@ def test_second_writer_on_a_locked_out_folder_refuses(
         )[0]
         == 0
     )
+
+
+def test_invalid_detection_boxes_and_missing_depth_are_warned_once(
+    template_bundle, dataset, tmp_path
+):
+    """A detections file with zero-size boxes and an RGB-D dataset missing one depth PNG: one
+    warning line each (naming the first frame and the file), the run goes on (was: silent)."""
+    ds = tmp_path / "ds"
+    shutil.copytree(dataset, ds)
+    dets = json.loads((ds / "detections_sim.json").read_text())
+    target = sorted((d for d in dets if d["category_id"] == 2), key=lambda d: d["image_id"])
+    for d in target[2:4]:
+        d["bbox"][2] = 0.0
+    (tmp_path / "dets.json").write_text(json.dumps(dets))
+    first = target[2]
+    depth_png = ds / "test" / "000001" / "depth" / "000005.png"
+    depth_png.unlink()
+    argv = ["--bundle", template_bundle, "--dataset", ds, "--out", tmp_path / "o", "--no-plot"]
+    argv += ["--no-progress", "--detections", tmp_path / "dets.json", "--modality", "rgbd"]
+    root = Path(__file__).resolve().parents[3]
+    proc = subprocess.run(  # a process of its own: warnings as a user sees them
+        [sys.executable, "-m", "chpf.track_cli", *(str(a) for a in argv)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(root)},
+        timeout=300,
+    )
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 0, err
+    boxes = [line for line in err if "invalid box" in line]
+    depth = [line for line in err if "depth" in line]
+    assert len(boxes) == 1 and len(depth) == 1 and len(err) == 2, err
+    where = f"scene {first['scene_id']} image {first['image_id']}"
+    assert boxes[0].startswith("warning: ") and where in boxes[0] and "dets.json" in boxes[0]
+    assert depth[0].startswith("warning: ") and str(depth_png) in depth[0]
