@@ -244,11 +244,11 @@ def check_size(diameter: float, where: str | Path, unit: str) -> None:
     fits = {u: raw * s for u, s in MESH_UNITS.items() if lo <= raw * s <= hi}
     if fits:
         best = min(fits, key=lambda u: abs(np.log(fits[u] / np.sqrt(lo * hi))))
-        hint = f"the file is probably in {best} (--unit {best}: {fits[best]:.3g} m)"
+        hint = f"the file is probably in {best} (--unit {best} gives {fits[best]:.3g} m)"
     else:
         hint = f"no unit ({', '.join(MESH_UNITS)}) makes it plausible"
     raise MeshError(
-        f"{where}: diameter {diameter:.4g} m with --unit {unit} is outside 1 cm - 2 m ({hint}); "
+        f"{where}: diameter {diameter:.4g} m with --unit {unit} is outside 1 cm - 2 m: {hint}; "
         "pass --allow-size to use it as it is"
     )
 
