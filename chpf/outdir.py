@@ -28,7 +28,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from chpf.atomic import atomic_write_text
+from chpf.atomic import atomic_write_text, naming
 from chpf.errors import OutputError
 
 LOCK_NAME = ".chpf.lock"
@@ -94,8 +94,9 @@ def _hold_lock(path: Path, what: Path, command: str) -> Iterator[None]:
                 f"{what}: another command is writing here ({holder or 'unknown'}); "
                 "wait for it to finish or choose another output"
             ) from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{command}, pid {os.getpid()}".encode(), 0)
+        with naming(path):
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{command}, pid {os.getpid()}".encode(), 0)
         yield
     finally:
         os.close(fd)  # closing the descriptor releases the lock
