@@ -231,9 +231,9 @@ def report_warnings(report: dict[str, Any], results: Path, split_path: Path) -> 
         lines.append(
             f"{results}: {report['duplicate_rows']} duplicate rows (more rows for an image and "
             f"object than it has instances; first: scene {ex['scene_id']} image {ex['im_id']} "
-            f"obj_id {ex['obj_id']}, {ex['rows']} rows for {ex['instances']} instance(s)); the "
-            f"best-scoring rows were kept (there score {ex['kept_score']:g}, the first of equal "
-            "scores), the others ignored"
+            f"obj_id {ex['obj_id']}, {ex['rows']} rows for {ex['instances']} instance(s)); per "
+            f"image the best-scoring rows were kept (there: score {ex['kept_score']:g}, the first "
+            "of equal scores), the others ignored"
         )
     if report["ignored_rows"]:
         lines.append(
@@ -248,7 +248,7 @@ def report_warnings(report: dict[str, Any], results: Path, split_path: Path) -> 
     if report["unscored_obj_ids"]:
         lines.append(
             f"obj_ids {report['unscored_obj_ids']} have ground truth in {split_path} but no result "
-            f"rows in {results}; not scored"
+            f"rows in {results}; not scored (only the objects the results name are)"
         )
     return lines
 
