@@ -84,8 +84,7 @@ def run_job(job: Job, out: Path, n_particles: int, config: str | None, threads: 
     info = ds.models_info()[seq.obj_id]
     err = {k: np.full(len(ims), np.inf) for k in ("add", "adds", "add_s")}
     if rows:
-        errs, _, _ = instance_errors(seq.root, rows, "test", [seq.scene_id])
-        e = errs[seq.obj_id]
+        e = instance_errors(seq.root, rows, "test", [seq.scene_id]).errors[seq.obj_id]
         for j, (_, im) in enumerate(e.keys):
             for k in err:
                 err[k][index[im]] = getattr(e, k)[j]

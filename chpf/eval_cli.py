@@ -20,7 +20,12 @@ What is scored (errors in metres, AUC = VOCap area up to 0.1 m, x100):
   appears k times in the image, the k best rows are matched greedily (best score first) to the
   still-unmatched instance with the lowest error, separately for each error kind (as the BOP
   toolkit matches per error type). With one instance this is simply the best-scoring row. Extra
-  rows and rows for images without that object are ignored (counted in ``ignored_rows``).
+  rows (more than the image has instances: duplicates, counted in ``duplicate_rows``, the first
+  one described in ``duplicate_example``) and rows for images without that object
+  (``ignored_rows``) are not scored.
+- Result obj_ids without ground truth in the scored scenes (``unknown_obj_ids``) and objects
+  with ground truth but no rows (``unscored_obj_ids``) are listed; the command warns about both,
+  and refuses (exit 2) a results file that is empty or names no object with ground truth.
 - Error kinds: ADD (plain, every object), ADD-S (symmetric metric, every object) and ADD(-S):
   ADD-S for an object with symmetries in ``models_info.json``, ADD otherwise (as papers report).
 - Per kind: the AUC and the accuracy at 0.1 diameter (% of instances with error < 0.1 d).
@@ -29,7 +34,8 @@ What is scored (errors in metres, AUC = VOCap area up to 0.1 m, x100):
 
 Report (``evaluate``)::
 
-    {"dataset", "split", "scenes": [...], "points", "ignored_rows",
+    {"dataset", "split", "scenes": [...], "points", "ignored_rows", "duplicate_rows",
+     "duplicate_example", "unknown_obj_ids", "unscored_obj_ids",
      "objects": {"<obj_id>": {"symmetric", "n", "n_missing", "add_auc", "add_acc", "adds_auc",
                               "adds_acc", "add_s_auc", "add_s_acc"}},
      "all": {same keys but symmetric}, "mean_of_objects": {the AUC and acc keys}}
@@ -41,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -52,15 +59,16 @@ import numpy as np
 from chpf.atomic import atomic_write_text
 from chpf.bop import BopDataset
 from chpf.console import run_main, scene_list
-from chpf.errors import DatasetError
+from chpf.errors import DatasetError, ResultsFormatError
 from chpf.eval_targets import Targets, read_targets
 from chpf.model_points import POINT_SOURCES, model_points
-from chpf.outdir import lock_output_path
+from chpf.outdir import check_out_file, lock_output_path
 from chpf.results import ResultRow, read_results_csv
 
 __all__ = [
     "InstanceErrors",
     "cli",
+    "duplicates",
     "evaluate",
     "format_table",
     "instance_errors",
@@ -106,7 +114,8 @@ def object_errors(
     """ADD and ADD-S errors (m) of one object's targets, plus the number of ignored rows.
 
     ``targets``: (scene, im) -> [(R_gt, t_gt), ...] instances; ``estimates``: (scene, im) -> rows.
-    Returns (add (n,), adds (n,), ignored) in target order, inf where no estimate matched.
+    Returns (add (n,), adds (n,), ignored) in target order, inf where no estimate matched;
+    ``ignored`` counts the rows of images without a target (duplicates: ``duplicates``).
     """
     from chpf.metrics import add_batch, adds_batch
 
@@ -119,7 +128,6 @@ def object_errors(
                 pair_e.append(r)
                 pair_g.append(g)
     ignored = sum(len(v) for k, v in estimates.items() if k not in targets)
-    ignored += sum(max(0, len(estimates.get(k, [])) - len(g)) for k, g in targets.items())
     if pair_e:
         Re = np.stack([r.R for r in pair_e])
         te = np.stack([r.t for r in pair_e])
@@ -135,6 +143,31 @@ def object_errors(
         add.append(_greedy(e_add[sl].reshape(n_est, n_gt)))
         adds.append(_greedy(e_adds[sl].reshape(n_est, n_gt)))
     return _cat(add), _cat(adds), ignored
+
+
+def duplicates(
+    obj_id: int,
+    targets: dict[tuple[int, int], list],
+    estimates: dict[tuple[int, int], list[ResultRow]],
+) -> tuple[int, dict[str, Any] | None]:
+    """Rows beyond the number of instances of their (scene, image) (duplicates: the best-scoring
+    rows are kept, the first of equal scores), and a description of the first such image."""
+    n, example = 0, None
+    for key in sorted(estimates):
+        extra = len(estimates[key]) - len(targets.get(key, ()))
+        if key in targets and extra > 0:
+            n += extra
+            if example is None:
+                rows = estimates[key]
+                example = {
+                    "scene_id": key[0],
+                    "im_id": key[1],
+                    "obj_id": obj_id,
+                    "rows": len(rows),
+                    "instances": len(targets[key]),
+                    "kept_score": max(r.score for r in rows),
+                }
+    return n, example
 
 
 @dataclass
@@ -186,6 +219,20 @@ def _mean_of_objects(objects: dict[str, dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+@dataclass
+class Scored:
+    """What instance_errors found: per scored object its InstanceErrors, the scenes, and the
+    rows and objects that were not scored (see the module docstring)."""
+
+    errors: dict[int, InstanceErrors]
+    scene_ids: list[int]
+    ignored_rows: int
+    duplicate_rows: int
+    duplicate_example: dict[str, Any] | None
+    unknown_obj_ids: list[int]
+    unscored_obj_ids: list[int]
+
+
 def instance_errors(
     dataset_root: str | Path,
     results_rows: Iterable[ResultRow],
@@ -193,8 +240,8 @@ def instance_errors(
     scenes: Iterable[int] | None = None,
     points: str | Path = "vertices",
     targets: Targets | None = None,
-) -> tuple[dict[int, InstanceErrors], list[int], int]:
-    """Per scored object its InstanceErrors; also the scene ids and the ignored row count.
+) -> Scored:
+    """Per scored object its InstanceErrors, and what was not scored (Scored).
 
     points: "vertices" | "sample" | a point file (chpf.model_points); targets: only these
     frames (chpf.eval_targets).
@@ -215,10 +262,12 @@ def instance_errors(
         raise DatasetError(f"{points}: one point file for {len(objs)} objects {objs}")
 
     gts: dict[int, dict[tuple[int, int], list]] = {o: defaultdict(list) for o in objs}
+    gt_ids: set[int] = set()
     for sid in scene_ids:
         scene = ds.scene(split, sid)
         for im_id, poses in scene.gt.items():
             for p in poses:
+                gt_ids.add(p.obj_id)
                 keep = targets is None or targets.keeps(sid, im_id, p.obj_id)
                 if p.obj_id in gts and keep:
                     gts[p.obj_id][(sid, im_id)].append((p.R, p.t))
@@ -229,8 +278,11 @@ def instance_errors(
         estimates[r.obj_id][(r.scene_id, r.im_id)].append(r)
 
     out: dict[int, InstanceErrors] = {}
-    ignored = 0
+    ignored, n_dup, example = 0, 0, None
     for obj_id in objs:
+        dup, ex = duplicates(obj_id, gts[obj_id], estimates[obj_id])
+        n_dup += dup
+        example = example or ex
         if gts[obj_id]:
             infos = ds.models_info()
             if obj_id not in infos:
@@ -241,11 +293,19 @@ def instance_errors(
             keys = [k for k, g in gts[obj_id].items() for _ in g]
             sym = bool(info.symmetries_discrete or info.symmetries_continuous)
             out[obj_id] = InstanceErrors(keys, add, adds, float(info.diameter), sym)
-        else:
-            ign = sum(len(v) for v in estimates[obj_id].values())
+        else:  # no ground truth at all: listed in unknown_obj_ids
+            ign = 0
             out[obj_id] = InstanceErrors([], np.zeros(0), np.zeros(0), float("nan"), False)
         ignored += ign
-    return out, scene_ids, ignored
+    return Scored(
+        out,
+        scene_ids,
+        ignored,
+        n_dup,
+        example,
+        sorted(set(objs) - gt_ids),
+        sorted(gt_ids - set(objs)),
+    )
 
 
 def evaluate(
@@ -257,22 +317,55 @@ def evaluate(
     targets: Targets | None = None,
 ) -> dict[str, Any]:
     """Score ``results_rows`` against the ground truth of ``split`` (see the module docstring)."""
-    errs, scene_ids, ignored = instance_errors(
-        dataset_root, results_rows, split, scenes, points, targets
-    )
+    sc = instance_errors(dataset_root, results_rows, split, scenes, points, targets)
     objects = {}
-    for obj_id, e in errs.items():
+    for obj_id, e in sc.errors.items():
         objects[str(obj_id)] = {"symmetric": e.symmetric, **_summary([e])}
     return {
         "dataset": str(dataset_root),
         "split": split,
-        "scenes": scene_ids,
+        "scenes": sc.scene_ids,
         "points": str(points),
         "objects": objects,
-        "all": _summary(list(errs.values())),
+        "all": _summary(list(sc.errors.values())),
         "mean_of_objects": _mean_of_objects(objects),
-        "ignored_rows": ignored,
+        "ignored_rows": sc.ignored_rows,
+        "duplicate_rows": sc.duplicate_rows,
+        "duplicate_example": sc.duplicate_example,
+        "unknown_obj_ids": sc.unknown_obj_ids,
+        "unscored_obj_ids": sc.unscored_obj_ids,
     }
+
+
+def report_warnings(report: dict[str, Any], results: Path, split_path: Path) -> list[str]:
+    """One line per thing that was not scored: duplicates (naming the first and the row kept),
+    rows of images without the object, obj_ids without ground truth and the reverse."""
+    lines = []
+    ex = report["duplicate_example"]
+    if ex is not None:
+        lines.append(
+            f"{results}: {report['duplicate_rows']} duplicate rows (more rows for an image and "
+            f"object than it has instances; first: scene {ex['scene_id']} image {ex['im_id']} "
+            f"obj_id {ex['obj_id']}, {ex['rows']} rows for {ex['instances']} instance(s)); per "
+            f"image the best-scoring rows were kept (there: score {ex['kept_score']:g}, the first "
+            "of equal scores), the others ignored"
+        )
+    if report["ignored_rows"]:
+        lines.append(
+            f"{results}: {report['ignored_rows']} rows are for images without their object "
+            "(matched no ground-truth instance); ignored"
+        )
+    if report["unknown_obj_ids"]:
+        lines.append(
+            f"the ground truth of {split_path} lacks obj_ids {report['unknown_obj_ids']} of "
+            f"{results}; their rows are not scored"
+        )
+    if report["unscored_obj_ids"]:
+        lines.append(
+            f"obj_ids {report['unscored_obj_ids']} have ground truth in {split_path} but no result "
+            f"rows in {results}; not scored (only the objects the results name are)"
+        )
+    return lines
 
 
 def format_auc(v: float | None) -> str:
@@ -326,14 +419,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="also write the report as JSON")
     args = parser.parse_args(argv)
 
+    if args.json is not None:
+        check_out_file(args.json)  # before the work, not after it
     rows = read_results_csv(args.results)
+    if not rows:
+        raise ResultsFormatError(f"{args.results}: no result rows; nothing to score")
     targets = read_targets(args.targets) if args.targets is not None else None
     report = evaluate(
         args.dataset, rows, args.split, args.scenes, points=args.points, targets=targets
     )
+    split_path = BopDataset(args.dataset).split_path(args.split)
+    if not set(report["objects"]) - {str(i) for i in report["unknown_obj_ids"]}:
+        raise DatasetError(
+            f"{args.results}: none of its obj_ids {report['unknown_obj_ids']} has ground truth "
+            f"in {split_path} (obj_ids {report['unscored_obj_ids']}); nothing to score"
+        )
+    for line in report_warnings(report, args.results, split_path):
+        print(f"warning: {line}", file=sys.stderr)
     print(format_table(report))
-    if report["ignored_rows"]:
-        print(f"({report['ignored_rows']} result rows matched no ground-truth instance)")
     if args.json is not None:
         with lock_output_path(args.json, "chpf-eval"):
             atomic_write_text(args.json, json.dumps(report, indent=2) + "\n")
