@@ -456,6 +456,15 @@ def _markdown(suite, fig, auc, track, n_done, n_seqs, pngs, out) -> str:
             f"{t['jobs_run']} jobs with {t['workers']} worker(s)).",
             "",
         ]
+    warned = defaultdict(int)
+    for by_key in fig.by_cell.values():
+        for by_seed in by_key.values():
+            for s in by_seed.values():
+                for w in s.get("warnings", []):
+                    warned[(s["method"], s["modality"], w.split(":")[0])] += 1
+    if warned:
+        counts = "; ".join(f"{m} {mod}: {k} in {v} jobs" for (m, mod, k), v in warned.items())
+        lines += [f"Warnings of the runs (recorded in each job's summary.json): {counts}.", ""]
     lines += ["## All sequences", "", headline_table(fig, auc, track), ""]
     lines += ["## Per occlusion level", "", level_table(fig, auc), ""]
     lines += ["## Figures", ""]

@@ -3,8 +3,9 @@
 Each job writes into ``OUT/jobs/JOB_ID/``: the method's BOP result CSV and frame log
 (chpf.tracking.run_dataset, flushed frame by frame) and, once done, ``summary.json`` (written
 atomically: per frame the visible fraction, the ADD, ADD-S and ADD(-S) errors as chpf-eval
-scores them, alpha; plus frames and ms). A job with a ``summary.json`` is finished and never
-run again, so an interrupted run loses nothing it had finished and a rerun does only the rest.
+scores them, alpha; plus frames, ms and the warnings of the run, e.g. weight collapses). A job
+with a ``summary.json`` is finished and never run again, so an interrupted run loses nothing it
+had finished and a rerun does only the rest.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from multiprocessing import get_context
 from pathlib import Path
@@ -65,17 +67,19 @@ def run_job(job: Job, out: Path, n_particles: int, config: str | None, threads: 
     )
     ds = BopDataset(seq.root)
     boxes = make_box_source(ds, "test", Path(seq.root) / DETECTIONS_SIM)
-    runs = run_dataset(
-        {job.method: tracker},
-        ds,
-        "test",
-        [seq.scene_id],
-        seq.obj_id,
-        boxes,
-        folder,
-        seed=job.seed,
-        progress=False,
-    )
+    with warnings.catch_warnings(record=True) as caught:  # kept in the summary, not printed
+        warnings.simplefilter("always")
+        runs = run_dataset(
+            {job.method: tracker},
+            ds,
+            "test",
+            [seq.scene_id],
+            seq.obj_id,
+            boxes,
+            folder,
+            seed=job.seed,
+            progress=False,
+        )
     run = runs[job.method]
     rows = read_results_csv(run.results) if run.results.is_file() else []
     scene = ds.scene("test", seq.scene_id)
@@ -116,6 +120,7 @@ def run_job(job: Job, out: Path, n_particles: int, config: str | None, threads: 
         **{k: [_finite_or_none(x) for x in v] for k, v in err.items()},
         "alpha": [_finite_or_none(x) for x in alpha],
         "ms": [_finite_or_none(x) for x in ms],
+        "warnings": sorted({f"{w.category.__name__}: {w.message}" for w in caught}),
     }
     from chpf.atomic import atomic_write_text
 
