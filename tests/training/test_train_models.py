@@ -164,3 +164,21 @@ def test_ch_loss_goes_down_on_fixed_batch() -> None:
         losses.append(loss.item())
     assert losses[-1] < 0.5 * losses[0]
     assert np.isfinite(losses).all()
+
+
+def test_checkpoint_of_an_older_version_loads(tmp_path) -> None:
+    """A checkpoint written before the typed configs (plain-dict hparams, a model_config
+    without the later keys) loads as the plain ReLU network it holds, with its weights."""
+    from training.checkpoints import load_autoencoder
+
+    ae = Autoencoder(TINY)
+    ckpt = {
+        "state_dict": {f"model.{k}": v for k, v in ae.state_dict().items()},
+        "hyper_parameters": {"encoder": TINY_KEYS, "lr": 1e-3},
+        "chpf": {"model_type": "ae", "format_version": 1, "model_config": TINY_KEYS},
+    }
+    torch.save(ckpt, tmp_path / "old.ckpt")
+    loaded, _ = load_autoencoder(tmp_path / "old.ckpt")
+    assert loaded.config == TINY and loaded.config.activation == "relu"
+    for k, v in ae.state_dict().items():
+        assert torch.equal(loaded.state_dict()[k], v), k
