@@ -44,7 +44,7 @@ class MotionConfig(Section):
     """Random walk per frame: translation std sigma_t (m), rotation std sigma_r (rad)."""
 
     sigma_t: float = setting(0.01, ge=0.0)
-    sigma_r: float = setting(0.03, ge=0.0)
+    sigma_r: float = setting(0.08, ge=0.0)
 
 
 @dataclass

@@ -79,6 +79,28 @@ def test_bundle_likelihood_prefers_the_true_pose(bundle, rendered_sequence):
     assert "ch_encode" not in s["truth"].stage_ms  # shared encoder: one pass for L and C
 
 
+def test_c_box_counts_a_hypothesis_smaller_than_the_detection_box_as_misaligned(
+    bundle, rendered_sequence
+):
+    """The true pose moved along its ray: nearer (projects larger than the box, as an occluded
+    object's box would) keeps C; 1.5 x farther projects at 2/3 of the box: C_box = 1, C = 1;
+    1.25 x farther: rho ~1.25, C_box ~0.25 with margin 0.2, combined by noisy-or."""
+    seq = rendered_sequence
+    frame = Frame(seq.rgb[0], None, seq.K, seq.box(0))
+    scales = np.array([0.8, 1.0, 1.25, 1.5])
+    R, t = np.repeat(seq.R[:1], 4, 0), seq.t[0][None] * scales[:, None]
+    plain = BundleLikelihood(bundle, c_mode="learned").score(frame, R, t).C
+    boxed = BundleLikelihood(bundle, c_mode="learned", c_box=0.2).score(frame, R, t).C
+    np.testing.assert_allclose(boxed[:2], plain[:2])
+    assert boxed[3] == pytest.approx(1.0) and plain[3] < 0.9
+    assert plain[2] < boxed[2] < 1.0
+    no_box = Frame(seq.rgb[0], None, seq.K, None)
+    np.testing.assert_allclose(
+        BundleLikelihood(bundle, c_box=0.2).score(no_box, R, t).C,
+        BundleLikelihood(bundle).score(no_box, R, t).C,
+    )
+
+
 def test_l_from_cos_maps_the_cosine_to_the_unnormalised_likelihood(bundle, rendered_sequence):
     seq = rendered_sequence
     frame = Frame(seq.rgb[0], None, seq.K, seq.box(0))
@@ -350,21 +372,21 @@ def test_shipped_bundle_likelihoods_rank_the_true_pose(sequence_renderer):
 @pytest.mark.parametrize(
     ("method", "config", "max_adds", "max_add", "max_deg"),
     [
-        ("e2e", None, 0.1, 0.13, 10.0),
-        ("poserbpf", None, 0.2, 0.4, 20.0),
-        ("chpf", None, 0.1, 0.2, 15.0),
+        ("e2e", PAPER, 0.1, 0.13, 10.0),
+        ("poserbpf", PAPER, 0.2, 0.4, 20.0),
+        ("chpf", None, 0.15, 0.3, 12.0),
         ("chrbpf", None, 0.2, 0.4, 20.0),
     ],
 )
 def test_shipped_bundle_tracks_an_unoccluded_sequence(
     sequence_renderer, method, config, max_adds, max_add, max_deg
 ):
-    """Starting from the detection boxes alone, MCL + E2E, PoseRBPF and CH-PF (with the informed
-    candidate distribution; with the paper's uniform one it stays a 6D random search, see the
-    README) track the pose with the trained networks: the medians over frames 10-29 of seeds
-    0-2 of ADD-S and ADD (diameters) and of the rotation error (deg) are below the bounds
+    """Starting from the detection boxes alone, MCL + E2E, PoseRBPF (the paper's setting), CH-PF
+    and CH-RBPF (the default; with the paper's uniform phi_cand CH-PF stays a 6D random search,
+    see the README) track the pose with the trained networks: the medians over frames 10-29 of
+    seeds 0-2 of ADD-S and ADD (diameters) and of the rotation error (deg) are below the bounds
     (measured: E2E 0.049, 0.087, 6.4 deg; PoseRBPF 0.143, 0.272, 13.5 deg, whose seeds range
-    from 0.09 to 0.32 in ADD-S; CH-PF 0.072, 0.132, 9.2 deg)."""
+    from 0.09 to 0.32 in ADD-S; CH-PF 0.120, 0.246, 8.0 deg, CHRBPF_MEASURED)."""
     bundle = _shipped_bundle()
     seq = sequence_renderer(30, name=bundle.obj_info.name, z=3.0 * bundle.obj_info.diameter)
     errs = []
@@ -377,7 +399,7 @@ def test_shipped_bundle_tracks_an_unoccluded_sequence(
 
 @pytest.mark.parametrize(
     ("method", "config", "max_add", "max_deg"),
-    [("e2e", None, 0.12, 10.0), ("poserbpf", None, 0.45, 18.0), ("chpf", None, 0.3, 15.0)],
+    [("e2e", PAPER, 0.12, 10.0), ("poserbpf", PAPER, 0.45, 18.0), ("chpf", None, 0.35, 12.0)],
 )
 def test_shipped_bundle_tracks_through_an_occluder(
     sequence_renderer, method, config, max_add, max_deg
@@ -385,7 +407,7 @@ def test_shipped_bundle_tracks_through_an_occluder(
     """A can passes in front of the box (frames 8-20 show 54-97 % of it; the box is the
     visible part's): the medians over those frames of seeds 0-2 of ADD (diameters) and of the
     rotation error (deg) stay below the bounds (measured: E2E 0.078, 5.6 deg; PoseRBPF 0.295,
-    10.9 deg; CH-PF 0.186, 9.0 deg)."""
+    10.9 deg, the paper's setting; CH-PF 0.286, 8.3 deg, the default)."""
     bundle = _shipped_bundle()
     d = bundle.obj_info.diameter
     seq = sequence_renderer(30, name=bundle.obj_info.name, z=3.0 * d, occluder="can")
@@ -423,36 +445,37 @@ def test_shipped_bundle_rgbd_is_at_least_as_accurate_as_rgb(sequence_renderer, m
 
 
 def test_shipped_bundle_c_calls_an_occluded_but_aligned_crop_aligned(sequence_renderer):
-    """A can passes in front of the box (frames 8-20 show 54-97 % of it): at the true pose the
-    learned C stays below 0.5 on every frame, occlusion is no evidence of misalignment
-    (measured: C <= 0.13, max at the least visible frame), while the same frames' poses
-    turned 45 deg are called misaligned."""
+    """A can passes in front of the box (frames 8-13 show 54-85 % of it): at the true pose the
+    learned C stays below 0.5 on every one of them, occlusion is no evidence of misalignment
+    (measured: 0.015 at most, at 64 % visible), while the same poses turned 45 deg are called
+    misaligned (0.956 at least)."""
     bundle = _shipped_bundle()
     d = bundle.obj_info.diameter
     seq = sequence_renderer(21, name=bundle.obj_info.name, z=3.0 * d, occluder="can")
     alone = sequence_renderer(21, name=bundle.obj_info.name, z=3.0 * d)
-    frames = range(8, 21)
-    visible = seq.mask[8:21].sum(axis=(1, 2)) / alone.mask[8:21].sum(axis=(1, 2))
-    assert visible.min() < 0.6  # the can hides a good part of the box
+    visible = seq.mask[8:14].sum(axis=(1, 2)) / alone.mask[8:14].sum(axis=(1, 2))
+    assert visible.min() < 0.6 and visible.max() < 0.9  # the can hides a good part of the box
     lik = Tracker.from_bundle(bundle, method="chpf").likelihood
     turn = axis_angle_to_matrix(np.radians(45.0) * np.array([0.0, 1.0, 0.0]))
-    C, C_turned = [], []
-    for i in frames:
+    C = []
+    for i in range(8, 14):
         frame = Frame(rgb=seq.rgb[i], depth=None, K=seq.K, box=seq.box(i))
         R = np.stack([seq.R[i], turn @ seq.R[i]])
-        c = lik.score(frame, R, np.repeat(seq.t[i][None], 2, 0)).C
-        C.append(c[0])
-        C_turned.append(c[1])
-    assert max(C) < 0.5, np.round(C, 3)
-    assert np.mean(C_turned) > 0.5, np.round(C_turned, 3)
+        C.append(lik.score(frame, R, np.repeat(seq.t[i][None], 2, 0)).C)
+    C = np.array(C)
+    assert C[:, 0].max() < 0.5 and C[:, 1].min() > 0.9, C.round(3)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_shipped_bundle_chpf_alpha_rises_after_a_forced_collapse_and_the_estimate_recovers(
     sequence_renderer, seed
 ):
-    """Default config: CH-PF tracks, every particle is then put on one wrong pose (90 deg off,
-    0.3 d aside) at frame 30: alpha rises above 0.8 and the estimate recovers."""
+    """Default config: CH-PF tracks with alpha near 0, every particle is then put on one wrong
+    pose (90 deg off, 0.3 d aside) at frame 30: alpha rises above 0.8, the estimate recovers
+    and alpha falls again. Measured, seeds 0 / 1 / 2: ADD-S 0.17 / 0.08 / 0.10 d and alpha
+    0.019 / 0.019 / 0.007 over frames 20-29, alpha 0.986 / 0.989 / 0.991 at the collapse and
+    0.018 / 0.018 / 0.014 over frames 50-59; after frame 40 median rotation error 4.9 / 5.8 /
+    5.1 deg, ADD-S 0.05 / 0.05 / 0.08 d, ADD 0.08 / 0.10 / 0.14 d."""
     bundle = _shipped_bundle()
     d = bundle.obj_info.diameter
     seq = sequence_renderer(60, name=bundle.obj_info.name, z=3.0 * d)
@@ -460,12 +483,9 @@ def test_shipped_bundle_chpf_alpha_rises_after_a_forced_collapse_and_the_estimat
     errs, res = _track(tracker, seq, collapse_at=30)
     alphas = np.array([r.alpha for r in res])
     adds_errs, add_errs, rot_err = errs.T
-    # tracking before the collapse, with few particles reinvigorated ...
-    assert np.median(adds_errs[20:30]) < 0.15 and np.median(add_errs[20:30]) < 0.35
-    assert alphas[20:30].mean() < 0.3
+    assert np.median(adds_errs[20:30]) < 0.2 and alphas[20:30].mean() < 0.1  # tracking
     assert rot_err[30] > 45.0 and alphas[30] > 0.8  # collapsed: doubt, reinvigoration
-    # recovered: the orientation is back (the collapse turned it 90 deg), ADD-S at the
-    # tracking level again, and alpha low again
-    assert np.median(rot_err[40:]) < 15.0 and np.median(adds_errs[40:]) < 0.15
-    assert np.median(add_errs[40:]) < 0.35
-    assert alphas[50:].mean() < 0.3
+    # recovered: the orientation is back (the collapse turned it 90 deg), the position too
+    assert np.median(rot_err[40:]) < 10.0 and np.median(adds_errs[40:]) < 0.12
+    assert np.median(add_errs[40:]) < 0.2
+    assert alphas[50:].mean() < 0.1  # settled again
