@@ -17,8 +17,9 @@ Errors: malformed or incomplete JSON -> ``BopFormatError``; missing files or fol
 same frame -> ``ImageSizeError``. Each message is one line naming the file.
 
 Size rule: if a camera entry has ``width``/``height`` (not in ``ycbv``, allowed here) the image
-must have exactly that size; in any case the principal point must lie inside the image, and the
-rgb, depth and mask images of one frame must have the same size.
+must have exactly that size; in any case its size must be within 20 % of (2 cx + 1, 2 cy + 1)
+(``chpf.geometry.check_image_size``), and the rgb, depth and mask images of one frame must have
+the same size.
 
 Results CSV and detections live in ``chpf.results`` and ``chpf.detections`` and are re-exported.
 """
@@ -39,6 +40,7 @@ import numpy as np
 from chpf.atomic import atomic_write_bytes, atomic_write_text
 from chpf.detections import read_detections, write_detections
 from chpf.errors import BopFormatError, DatasetError, ImageSizeError
+from chpf.geometry import check_image_size
 from chpf.results import ResultRow, ResultsAppender, read_results_csv, write_results_csv
 
 __all__ = [
@@ -491,9 +493,11 @@ def write_depth(path: str | Path, depth_m: np.ndarray, depth_scale: float = 0.1)
         raise ValueError(f"{path}: depth must be (H,W), got {d.shape}")
     raw = np.where(np.isfinite(d) & (d > 0), d, 0.0) * MM / depth_scale
     raw = np.rint(raw)
-    if raw.max(initial=0) > np.iinfo(np.uint16).max:
-        raise ValueError(
-            f"{path}: depth {d.max():.3f} m exceeds uint16 with depth_scale {depth_scale} mm"
+    top = np.iinfo(np.uint16).max
+    if raw.max(initial=0) > top:
+        raise DatasetError(
+            f"{path}: depth {d.max():.3f} m exceeds uint16 with depth_scale {depth_scale} mm "
+            f"(at most {top * depth_scale / MM:.2f} m; raise depth.depth_scale)"
         )
     _encode(Path(path), raw.astype(np.uint16))
 
@@ -713,11 +717,10 @@ class BopScene:
             raise ImageSizeError(
                 f"{path}: image is {w}x{h} but the camera says {cam.width}x{cam.height}"
             )
-        cx, cy = float(cam.K[0, 2]), float(cam.K[1, 2])
-        if not (0 <= cx < w and 0 <= cy < h):
-            raise ImageSizeError(
-                f"{path}: principal point ({cx:g}, {cy:g}) lies outside the {w}x{h} image"
-            )
+        try:
+            check_image_size(w, h, cam.K)
+        except ImageSizeError as err:
+            raise ImageSizeError(f"{path}: {err}") from None
         for other in others:
             size = image_size(other)
             if size is not None and (int(size[0]), int(size[1])) != (h, w):
@@ -757,6 +760,24 @@ class BopDataset:
         if self._models_info is None:
             self._models_info = read_models_info(self.models_info_path)
         return self._models_info
+
+    @property
+    def sequences_info_path(self) -> Path:
+        return self.root / SEQUENCES_INFO
+
+    def recorded_fingerprints(self) -> dict[int, str]:
+        """``{obj_id: mesh fingerprint}`` recorded by ``chpf-gen-data sequences`` in
+        ``sequences_info.json`` (``chpf.objects.object_fingerprint``); {} when there is none."""
+        path = self.sequences_info_path
+        if not path.is_file():
+            return {}
+        data = _load_json(path)
+        objects = data.get("objects") if isinstance(data, dict) else None
+        return {
+            o["obj_id"]: str(o["fingerprint"])
+            for o in (objects if isinstance(objects, list) else [])
+            if isinstance(o, dict) and isinstance(o.get("obj_id"), int) and o.get("fingerprint")
+        }
 
     def model_path(self, obj_id: int) -> Path:
         """``ROOT/models/obj_{obj_id:06d}.ply``."""

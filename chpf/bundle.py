@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
+from chpf.bop import BopDataset
 from chpf.crops import CropSpec
 from chpf.errors import BundleError, ConfigError, ImageSizeError
 from chpf.geometry import RotationGrid
@@ -35,6 +36,8 @@ from chpf.hashing import sha256_file
 
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
+DIAMETER_TOL = 0.05
+"""Relative difference of diameters above which a dataset's object is not the bundle's."""
 SUPPORTED_CROP_SIZES: tuple[int, ...] = tuple(range(32, 257, 16))
 """Crop sizes S the runtime supports: multiples of 16 from 32 to 256."""
 
@@ -275,6 +278,30 @@ class Bundle:
             {"p_misaligned": "tensor(float)"},
         )
         return cls(root, manifest, spec, obj_info, codebook, ae, ch, head)
+
+    # ------------------------------------------------------------------ data
+    def check_dataset(self, dataset: BopDataset, tol: float = DIAMETER_TOL) -> None:
+        """Refuse (BundleError naming both) a dataset whose object with this bundle's obj_id is
+        another object: its ``models_info.json`` diameter differs from the manifest's by more
+        than ``tol`` (relative), or the mesh fingerprint that ``chpf-gen-data`` recorded in its
+        ``sequences_info.json`` differs from the manifest's. Nothing recorded: nothing to check.
+        """
+        obj = self.obj_info
+        mine = f"the bundle's object {obj.name!r} ({self.path / MANIFEST})"
+        info = dataset.models_info().get(obj.obj_id) if dataset.models_info_path.is_file() else None
+        if info is not None and abs(info.diameter - obj.diameter) > tol * obj.diameter:
+            raise BundleError(
+                f"{dataset.models_info_path}: obj_id {obj.obj_id} has diameter "
+                f"{info.diameter * 1000:.1f} mm but {mine} has {obj.diameter * 1000:.1f} mm "
+                f"(more than {tol:.0%} apart): another object; track it with its own bundle"
+            )
+        recorded = dataset.recorded_fingerprints().get(obj.obj_id)
+        if recorded and obj.fingerprint and recorded != obj.fingerprint:
+            raise BundleError(
+                f"{dataset.sequences_info_path}: obj_id {obj.obj_id} has mesh fingerprint "
+                f"{recorded[:10]} but {mine} has {obj.fingerprint[:10]}: another mesh; track it "
+                "with its own bundle"
+            )
 
     # ------------------------------------------------------------------ calls
     def _check_crops(self, crops: np.ndarray) -> np.ndarray:

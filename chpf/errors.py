@@ -39,3 +39,7 @@ class DatasetError(ChpfError):
 
 class OutputError(ChpfError):
     """An output folder cannot be written, is busy, or holds outputs of other settings."""
+
+
+class InputError(ChpfError):
+    """An input given to the API has the wrong type or form (e.g. a box given as text)."""

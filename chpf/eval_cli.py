@@ -13,14 +13,20 @@ What is scored (YCB-Video convention, errors in metres, AUC = VOCap area up to 0
 - Estimates: per (scene, image, object) the rows are taken in decreasing score; if the object
   appears k times in the image, the k best rows are matched greedily (best score first) to the
   still-unmatched instance with the lowest error, separately for ADD and ADD-S (as the BOP toolkit
-  matches per error type). With one instance this is simply the best-scoring row. Extra rows and
-  rows for images without that object are ignored (counted in ``ignored_rows``).
+  matches per error type). With one instance this is simply the best-scoring row. Extra rows
+  (more than the image has instances: duplicates, counted in ``duplicate_rows``, the first one
+  described in ``duplicate_example``) and rows for images without that object (``ignored_rows``)
+  are not scored.
+- Result obj_ids without ground truth in the scored scenes (``unknown_obj_ids``) and objects
+  with ground truth but no rows (``unscored_obj_ids``) are listed; the command warns about both,
+  and refuses (exit 2) a results file that is empty or names no object with ground truth.
 - ADD is the plain metric for every object, symmetric or not; ADD-S is the symmetric metric.
 - ``all`` pools the errors of all targets of all scored objects (instance-weighted).
 
 Report (``evaluate``)::
 
-    {"dataset", "split", "scenes": [...], "ignored_rows",
+    {"dataset", "split", "scenes": [...], "ignored_rows", "duplicate_rows", "duplicate_example",
+     "unknown_obj_ids", "unscored_obj_ids",
      "objects": {"<obj_id>": {"n", "n_missing", "add_auc", "adds_auc"}}, "all": {same keys}}
 
 AUCs are None (JSON null) for an object with no targets.
@@ -30,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -40,11 +47,11 @@ import numpy as np
 from chpf.atomic import atomic_write_text
 from chpf.bop import BopDataset
 from chpf.console import run_main, scene_list
-from chpf.errors import DatasetError
-from chpf.outdir import lock_output_path
+from chpf.errors import DatasetError, ResultsFormatError
+from chpf.outdir import check_out_file, lock_output_path
 from chpf.results import ResultRow, read_results_csv
 
-__all__ = ["cli", "evaluate", "format_table", "main", "object_errors"]
+__all__ = ["cli", "duplicates", "evaluate", "format_table", "main", "object_errors"]
 
 CHUNK = 256  # pose pairs per metrics call (bounds memory: CHUNK x points x 3)
 
@@ -84,7 +91,8 @@ def object_errors(
     """ADD and ADD-S errors (m) of one object's targets, plus the number of ignored rows.
 
     ``targets``: (scene, im) -> [(R_gt, t_gt), ...] instances; ``estimates``: (scene, im) -> rows.
-    Returns (add (n,), adds (n,), ignored) in target order, inf where no estimate matched.
+    Returns (add (n,), adds (n,), ignored) in target order, inf where no estimate matched;
+    ``ignored`` counts the rows of images without a target (duplicates: ``duplicates``).
     """
     from chpf.metrics import add_batch, adds_batch
 
@@ -97,7 +105,6 @@ def object_errors(
                 pair_e.append(r)
                 pair_g.append(g)
     ignored = sum(len(v) for k, v in estimates.items() if k not in targets)
-    ignored += sum(max(0, len(estimates.get(k, [])) - len(g)) for k, g in targets.items())
     if pair_e:
         Re = np.stack([r.R for r in pair_e])
         te = np.stack([r.t for r in pair_e])
@@ -113,6 +120,31 @@ def object_errors(
         add.append(_greedy(e_add[sl].reshape(n_est, n_gt)))
         adds.append(_greedy(e_adds[sl].reshape(n_est, n_gt)))
     return _cat(add), _cat(adds), ignored
+
+
+def duplicates(
+    obj_id: int,
+    targets: dict[tuple[int, int], list],
+    estimates: dict[tuple[int, int], list[ResultRow]],
+) -> tuple[int, dict[str, Any] | None]:
+    """Rows beyond the number of instances of their (scene, image) (duplicates: the best-scoring
+    rows are kept, the first of equal scores), and a description of the first such image."""
+    n, example = 0, None
+    for key in sorted(estimates):
+        extra = len(estimates[key]) - len(targets.get(key, ()))
+        if key in targets and extra > 0:
+            n += extra
+            if example is None:
+                rows = estimates[key]
+                example = {
+                    "scene_id": key[0],
+                    "im_id": key[1],
+                    "obj_id": obj_id,
+                    "rows": len(rows),
+                    "instances": len(targets[key]),
+                    "kept_score": max(r.score for r in rows),
+                }
+    return n, example
 
 
 def _summary(add: np.ndarray, adds: np.ndarray) -> dict[str, Any]:
@@ -146,10 +178,12 @@ def evaluate(
         scene_ids = [s for s in scene_ids if s in wanted]
 
     targets: dict[int, dict[tuple[int, int], list]] = {o: defaultdict(list) for o in objs}
+    gt_ids: set[int] = set()
     for sid in scene_ids:
         scene = ds.scene(split, sid)
         for im_id, poses in scene.gt.items():
             for p in poses:
+                gt_ids.add(p.obj_id)
                 if p.obj_id in targets:
                     targets[p.obj_id][(sid, im_id)].append((p.R, p.t))
     estimates: dict[int, dict[tuple[int, int], list[ResultRow]]] = {
@@ -163,22 +197,60 @@ def evaluate(
         "split": split,
         "scenes": scene_ids,
         "objects": {},
+        "unknown_obj_ids": sorted(set(objs) - gt_ids),
+        "unscored_obj_ids": sorted(gt_ids - set(objs)),
+        "duplicate_example": None,
     }
-    all_add, all_adds, ignored = [], [], 0
+    all_add, all_adds, ignored, n_dup = [], [], 0, 0
     for obj_id in objs:
+        dup, example = duplicates(obj_id, targets[obj_id], estimates[obj_id])
+        n_dup += dup
+        report["duplicate_example"] = report["duplicate_example"] or example
         if targets[obj_id]:
             points = np.asarray(ds.load_object(obj_id).points, dtype=np.float64)
             add, adds, ign = object_errors(points, targets[obj_id], estimates[obj_id])
-        else:
+        else:  # no ground truth at all: listed in unknown_obj_ids
             add = adds = np.zeros(0)
-            ign = sum(len(v) for v in estimates[obj_id].values())
+            ign = 0
         ignored += ign
         all_add.append(add)
         all_adds.append(adds)
         report["objects"][str(obj_id)] = _summary(add, adds)
     report["all"] = _summary(_cat(all_add), _cat(all_adds))
     report["ignored_rows"] = ignored
+    report["duplicate_rows"] = n_dup
     return report
+
+
+def report_warnings(report: dict[str, Any], results: Path, split_path: Path) -> list[str]:
+    """One line per thing that was not scored: duplicates (naming the first and the row kept),
+    rows of images without the object, obj_ids without ground truth and the reverse."""
+    lines = []
+    ex = report["duplicate_example"]
+    if ex is not None:
+        lines.append(
+            f"{results}: {report['duplicate_rows']} duplicate rows (more rows for an image and "
+            f"object than it has instances; first: scene {ex['scene_id']} image {ex['im_id']} "
+            f"obj_id {ex['obj_id']}, {ex['rows']} rows for {ex['instances']} instance(s)); per "
+            f"image the best-scoring rows were kept (there: score {ex['kept_score']:g}, the first "
+            "of equal scores), the others ignored"
+        )
+    if report["ignored_rows"]:
+        lines.append(
+            f"{results}: {report['ignored_rows']} rows are for images without their object "
+            "(matched no ground-truth instance); ignored"
+        )
+    if report["unknown_obj_ids"]:
+        lines.append(
+            f"the ground truth of {split_path} lacks obj_ids {report['unknown_obj_ids']} of "
+            f"{results}; their rows are not scored"
+        )
+    if report["unscored_obj_ids"]:
+        lines.append(
+            f"obj_ids {report['unscored_obj_ids']} have ground truth in {split_path} but no result "
+            f"rows in {results}; not scored (only the objects the results name are)"
+        )
+    return lines
 
 
 def format_auc(v: float | None) -> str:
@@ -212,12 +284,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--scenes", type=scene_list, default=None, help="e.g. 48,49 (default all)")
     parser.add_argument("--json", type=Path, default=None, help="also write the report as JSON")
     args = parser.parse_args(argv)
-
+    if args.json is not None:
+        check_out_file(args.json)  # before the work, not after it
     rows = read_results_csv(args.results)
+    if not rows:
+        raise ResultsFormatError(f"{args.results}: no result rows; nothing to score")
     report = evaluate(args.dataset, rows, split=args.split, scenes=args.scenes)
+    split_path = BopDataset(args.dataset).split_path(args.split)
+    if not set(report["objects"]) - {str(i) for i in report["unknown_obj_ids"]}:
+        raise DatasetError(
+            f"{args.results}: none of its obj_ids {report['unknown_obj_ids']} has ground truth "
+            f"in {split_path} (obj_ids {report['unscored_obj_ids']}); nothing to score"
+        )
+    for line in report_warnings(report, args.results, split_path):
+        print(f"warning: {line}", file=sys.stderr)
     print(format_table(report))
-    if report["ignored_rows"]:
-        print(f"({report['ignored_rows']} result rows matched no ground-truth instance)")
     if args.json is not None:
         with lock_output_path(args.json, "chpf-eval"):
             atomic_write_text(args.json, json.dumps(report, indent=2) + "\n")

@@ -10,11 +10,15 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from chpf.errors import ImageSizeError
+
 __all__ = [
+    "IMAGE_SIZE_TOL",
     "RotationGrid",
     "allocentric_to_egocentric",
     "average_quaternions",
     "axis_angle_to_matrix",
+    "check_image_size",
     "egocentric_to_allocentric",
     "geodesic_angle",
     "matrix_to_axis_angle",
@@ -289,3 +293,27 @@ def project_points(X: np.ndarray, K: np.ndarray) -> np.ndarray:
     p = X @ np.asarray(K, dtype=np.float64).T
     with np.errstate(divide="ignore", invalid="ignore"):
         return p[..., :2] / p[..., 2:3]
+
+
+IMAGE_SIZE_TOL = 0.2
+"""Relative tolerance of ``check_image_size`` (principal points are near the image centre)."""
+
+
+def check_image_size(width: int, height: int, K: np.ndarray, tol: float = IMAGE_SIZE_TOL) -> None:
+    """Raise ImageSizeError if a ``width`` x ``height`` pixel image cannot belong to K (3,3).
+
+    The principal point of a camera lies near the image centre, so the image's size should be
+    about (2 cx + 1, 2 cy + 1) pixels; more than ``tol`` (relative) off in either direction means
+    the image was resized or cropped without adjusting K (e.g. a 320x240 image with the K of a
+    640x480 camera, whose principal point still falls inside the image).
+    """
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+    want_w, want_h = 2.0 * cx + 1.0, 2.0 * cy + 1.0
+    off_w = abs(width - want_w) / max(want_w, 1.0)
+    off_h = abs(height - want_h) / max(want_h, 1.0)
+    if not (off_w <= tol and off_h <= tol):
+        raise ImageSizeError(
+            f"image is {width}x{height} but the principal point ({cx:g}, {cy:g}) of K implies "
+            f"about {want_w:.0f}x{want_h:.0f} (2 cx + 1, 2 cy + 1; more than {tol:.0%} off): "
+            "image size and K disagree"
+        )

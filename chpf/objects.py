@@ -36,6 +36,10 @@ DEFAULT_NUM_POINTS = 2000
 POINTS_SEED = 0
 
 BUILTIN_OBJECTS: dict[str, int] = {"mug": 1, "box": 2, "can": 3, "drill": 4}
+MESH_UNITS: dict[str, float] = {"mm": 0.001, "cm": 0.01, "m": 1.0}
+"""Length units of mesh files (``--unit``) and their size in metres."""
+SIZE_RANGE = (0.01, 2.0)
+"""Plausible object diameters (metres): outside it the mesh's unit is probably wrong."""
 
 
 @dataclass(eq=False)
@@ -155,15 +159,15 @@ def load_mesh(
     obj_id: int = 0,
     num_points: int = DEFAULT_NUM_POINTS,
 ) -> ObjectModel:
-    """Load a .ply / .obj / .stl mesh; ``unit`` is the file's length unit ("m" or "mm").
+    """Load a .ply / .obj / .stl mesh; ``unit`` is the file's length unit (``MESH_UNITS``).
 
     Scenes (several geometries) are concatenated. The origin is kept as in the file.
     Raises MeshError (one line naming the file) if the file is missing, unreadable, or has no
     faces; ConfigError for an unknown unit.
     """
     p = Path(path)
-    if unit not in ("m", "mm"):
-        raise ConfigError(f"{p}: unknown mesh unit {unit!r} (use 'm' or 'mm')")
+    if unit not in MESH_UNITS:
+        raise ConfigError(f"{p}: unknown mesh unit {unit!r} (use {', '.join(MESH_UNITS)})")
     if not p.is_file():
         raise MeshError(f"{p}: mesh file not found")
     suffix = p.suffix.lower()
@@ -182,8 +186,8 @@ def load_mesh(
         raise MeshError(f"{p}: mesh has no faces")
     if not np.all(np.isfinite(loaded.vertices)):
         raise MeshError(f"{p}: mesh has non-finite vertex coordinates")
-    if unit == "mm":
-        loaded.apply_scale(0.001)
+    if unit != "m":
+        loaded.apply_scale(MESH_UNITS[unit])
     return make_object(loaded, name or p.stem, obj_id=obj_id, num_points=num_points)
 
 
@@ -230,13 +234,36 @@ def texture_image(mesh: trimesh.Trimesh) -> np.ndarray | None:
     return arr.astype(np.uint8, copy=False)
 
 
-def get_object(name_or_path: str, unit: str = "m") -> ObjectModel:
-    """A built-in object by name, or a mesh file (``unit`` = file unit); MeshError otherwise."""
+def check_size(diameter: float, where: str | Path, unit: str) -> None:
+    """MeshError if ``diameter`` (metres, read with ``unit``) is outside ``SIZE_RANGE``, naming
+    the unit that would bring it inside (the one nearest the range's middle)."""
+    lo, hi = SIZE_RANGE
+    if lo <= diameter <= hi:
+        return
+    raw = diameter / MESH_UNITS[unit]  # in the file's own numbers
+    fits = {u: raw * s for u, s in MESH_UNITS.items() if lo <= raw * s <= hi}
+    if fits:
+        best = min(fits, key=lambda u: abs(np.log(fits[u] / np.sqrt(lo * hi))))
+        hint = f"the file is probably in {best} (--unit {best} gives {fits[best]:.3g} m)"
+    else:
+        hint = f"no unit ({', '.join(MESH_UNITS)}) makes it plausible"
+    raise MeshError(
+        f"{where}: diameter {diameter:.4g} m with --unit {unit} is outside 1 cm - 2 m: {hint}; "
+        "pass --allow-size to use it as it is"
+    )
+
+
+def get_object(name_or_path: str, unit: str = "m", allow_size: bool = False) -> ObjectModel:
+    """A built-in object by name, or a mesh file (``unit`` = file unit); MeshError otherwise,
+    also when a mesh's diameter is outside 1 cm - 2 m unless ``allow_size`` (``check_size``)."""
     if name_or_path in BUILTIN_OBJECTS:
         return builtin_object(name_or_path)
     p = Path(name_or_path)
     if p.suffix.lower() in MESH_SUFFIXES or p.exists():
-        return load_mesh(p, unit=unit)
+        obj = load_mesh(p, unit=unit)
+        if not allow_size:
+            check_size(obj.diameter, p, unit)
+        return obj
     raise MeshError(
         f"{name_or_path}: neither a built-in object ({', '.join(BUILTIN_OBJECTS)}) "
         "nor a mesh file (.ply, .obj, .stl)"

@@ -1,4 +1,10 @@
-"""Output folders of the chpf commands: one writer at a time, and outputs of one setting only.
+"""Output folders of the chpf commands: checked first, one writer at a time, and outputs of one
+setting only.
+
+``check_out_dir(folder)`` / ``check_out_file(path)`` refuse (OutputError, one line) an output
+that cannot be written before a command does any work: an existing file where a folder is due, a
+folder where a file is due, a path under a file, a place where nothing can be created. They
+create nothing.
 
 ``lock_output_dir(folder, command)`` takes an exclusive ``flock`` on ``FOLDER/.chpf.lock`` for as
 long as a command writes there (``lock_output_path`` beside a file or folder that is replaced
@@ -17,25 +23,58 @@ import contextlib
 import fcntl
 import json
 import os
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from chpf.atomic import atomic_write_text
+from chpf.atomic import atomic_write_text, naming
 from chpf.errors import OutputError
 
 LOCK_NAME = ".chpf.lock"
 
 
-def make_output_dir(folder: str | os.PathLike) -> Path:
-    """Create ``folder`` (and parents); OutputError naming it when that is impossible."""
+def check_out_dir(folder: str | os.PathLike) -> Path:
+    """Refuse (OutputError) an output folder that cannot be created or written; returns it.
+
+    Its nearest existing ancestor (itself if it exists) must be a folder in which a file can be
+    created (probed with a temporary file, so a read-only or virtual place such as /proc fails).
+    """
     folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{folder}: exists and is not a folder")
+    base = folder
+    while not base.exists() and base != base.parent:
+        base = base.parent
+    if not base.is_dir():
+        raise OutputError(f"{folder}: cannot create the folder ({base} is a file, not a folder)")
+    try:
+        with tempfile.TemporaryFile(dir=base):
+            pass
+    except OSError as err:
+        what = "write in the folder" if base == folder else "create the folder"
+        raise OutputError(f"{folder}: cannot {what} ({base}: {err.strerror})") from None
+    return folder
+
+
+def check_out_file(path: str | os.PathLike) -> Path:
+    """Refuse (OutputError) an output file that cannot be written: an existing folder, or a
+    folder for it that cannot be created or written (``check_out_dir``); returns it."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{path}: is a folder, not a file; give a file name")
+    check_out_dir(path.parent)
+    return path
+
+
+def make_output_dir(folder: str | os.PathLike) -> Path:
+    """Create ``folder`` (and parents) after ``check_out_dir``; OutputError naming it when that
+    is impossible."""
+    folder = check_out_dir(folder)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except (OSError, ValueError) as err:
         raise OutputError(f"{folder}: cannot create the output folder ({err})") from None
-    if not folder.is_dir():
-        raise OutputError(f"{folder}: exists and is not a folder")
     return folder
 
 
@@ -55,8 +94,9 @@ def _hold_lock(path: Path, what: Path, command: str) -> Iterator[None]:
                 f"{what}: another command is writing here ({holder or 'unknown'}); "
                 "wait for it to finish or choose another output"
             ) from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{command}, pid {os.getpid()}".encode(), 0)
+        with naming(path):
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{command}, pid {os.getpid()}".encode(), 0)
         yield
     finally:
         os.close(fd)  # closing the descriptor releases the lock

@@ -2,7 +2,8 @@
 
 ``R`` is 9 numbers separated by spaces (row-major), ``t`` 3 numbers in millimetres, ``time`` in
 seconds (-1 = unknown). In memory ``t`` is in metres. The header line is optional on reading (as in
-the BOP toolkit) and always written. Blank lines are skipped. ``ResultsFormatError`` names the file
+the BOP toolkit) and always written; a first line that is not numbers must be that header (a
+renamed column is named). Blank lines are skipped. ``ResultsFormatError`` names the file
 and the line for a wrong column count, a non-number, a non-finite value, or an ``R`` that is not a
 rotation (``|R R^T - I| > 1e-3`` or ``det R < 0``).
 """
@@ -101,10 +102,35 @@ def parse_row(line: str, path: str | Path, lineno: int) -> ResultRow:
     return ResultRow(ids[0], ids[1], ids[2], float(score), R, t, float(time))
 
 
+def _is_header(line: str, path: str | Path) -> bool:
+    """Whether the first line is a header (its first column is not a number); ResultsFormatError
+    naming the first wrong column when it is one but not ``HEADER``."""
+    cols = [c.strip() for c in line.split(",")]
+    try:
+        float(cols[0])
+        return False
+    except ValueError:
+        pass
+    want = HEADER.split(",")
+    for i, name in enumerate(want):
+        got = cols[i] if i < len(cols) else None
+        if got != name:
+            found = "nothing" if got is None else repr(got)
+            raise ResultsFormatError(
+                f"{path}:1: header is wrong: expected column {name!r} (column {i + 1}), found "
+                f"{found} (the header is {HEADER})"
+            )
+    if len(cols) > len(want):
+        raise ResultsFormatError(
+            f"{path}:1: header is wrong: extra columns {cols[len(want) :]} (the header is {HEADER})"
+        )
+    return True
+
+
 def _iter_lines(path: Path, text: str):
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
-        if not s or (lineno == 1 and s.replace(" ", "") == HEADER):
+        if not s or (lineno == 1 and _is_header(s, path)):
             continue
         yield lineno, s
 

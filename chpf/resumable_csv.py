@@ -8,9 +8,13 @@ file gets the header. Every row is flushed to the OS as it is written, and ``clo
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import IO
+
+from chpf.atomic import naming
 
 Key = tuple[int, int, int]
 """(scene_id, im_id, obj_id) of a row."""
@@ -40,13 +44,15 @@ class ResumableCsv:
             self._keys.update(read_keys(self.path, text))
         self._f = open(self.path, "a", encoding="utf-8", newline="")
         if not text.strip():
-            self._f.write(header + "\n")
-            self._f.flush()
+            with naming(self.path):
+                self._f.write(header + "\n")
+                self._f.flush()
 
     def append_line(self, key: Key, line: str) -> None:
         """Write one row (``line`` without newline) and flush it to the OS."""
-        self._f.write(line + "\n")
-        self._f.flush()
+        with naming(self.path):
+            self._f.write(line + "\n")
+            self._f.flush()
         self._keys.add(key)
 
     def done_keys(self) -> set[Key]:
@@ -54,11 +60,18 @@ class ResumableCsv:
         return set(self._keys)
 
     def close(self) -> None:
-        """Flush, fsync and close (idempotent)."""
-        if not self._f.closed:
-            self._f.flush()
-            os.fsync(self._f.fileno())
-            self._f.close()
+        """Flush, fsync and close (idempotent). On a write error (a full disk) the file is
+        closed all the same, its unwritten tail dropped, and the error raised once."""
+        if self._f.closed:
+            return
+        try:
+            with naming(self.path):
+                self._f.flush()
+                os.fsync(self._f.fileno())
+        except OSError:
+            _close_quietly(self._f)
+            raise
+        self._f.close()
 
     def __enter__(self) -> ResumableCsv:
         return self
@@ -68,5 +81,11 @@ class ResumableCsv:
 
     def __del__(self) -> None:
         f = getattr(self, "_f", None)
-        if f is not None and not f.closed:
-            f.close()
+        if f is not None:
+            _close_quietly(f)
+
+
+def _close_quietly(f: IO[str]) -> None:
+    """Close ``f``; a failing final flush (the error was raised where it happened) is dropped."""
+    with contextlib.suppress(OSError):
+        f.close()

@@ -28,7 +28,7 @@ from chpf.bop import BopDataset, read_results_csv
 from chpf.bundle import Bundle
 from chpf.console import run_main, scene_list
 from chpf.errors import BundleError, ConfigError, DatasetError
-from chpf.outdir import claim_settings, lock_output_dir
+from chpf.outdir import check_out_dir, claim_settings, lock_output_dir
 from chpf.tracking.boxes import make_box_source
 from chpf.tracking.config import MODALITIES, make_config
 from chpf.tracking.methods import method_names
@@ -163,12 +163,13 @@ def track(
             f"{bundle.path}: bundle is for object {bundle.obj_info.name!r} (obj_id {obj_id}) but "
             f"{dataset} has obj_ids {sorted(ids)}"
         )
+    bundle.check_dataset(ds)
     cfg = tracking_config(args)
     trackers = {
         m: Tracker(bundle, method=m, modality=args.modality, seed=args.seed, config=cfg)
         for m in methods
     }
-    out = args.out or Path("chpf_track_out")
+    out = args.out
     with lock_output_dir(out, "chpf-track"):
         settings = track_settings(
             bundle,
@@ -237,6 +238,7 @@ def tracking_config(args: argparse.Namespace) -> Any:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``chpf-track``; returns the exit code."""
     args = build_parser().parse_args(argv)
+    args.out = check_out_dir(args.out or Path("chpf_demo" if args.demo else "chpf_track_out"))
     run_cfg = tracking_config(args).runtime
     if args.demo:
         from chpf.tracking.demo import DEMO_METHODS, demo_dataset, shipped_bundle
@@ -247,7 +249,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ConfigError(f"{dataset}: the demo sequence is RGB only (no depth frames)")
         args.detections = None
         args.split = "test"
-        args.out = args.out or Path("chpf_demo")
         methods = list(DEMO_METHODS) if args.method == "chpf" else parse_methods(args.method)
         return track(args, methods, dataset, bundle, fresh=True)  # the demo starts afresh
     if args.bundle is None or args.dataset is None:

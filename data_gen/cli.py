@@ -3,7 +3,7 @@
 Subcommands::
 
     chpf-gen-data pairs --object mug --out data/mug_pairs --n 100000 [--workers 2]
-    chpf-gen-data ae    --object mesh.ply --unit mm --out data/ae --n 50000
+    chpf-gen-data ae    --object mesh.ply --unit mm --out data/ae --n 50000 [--allow-size]
     chpf-gen-data pool  --object mug                 # build / report the cached pools only
     chpf-gen-data sequences --objects mug,can,box --out data/seq [--occlusion heavy]
     chpf-gen-data bench [--object mug --n 4000]       # samples/s with 1 and 2 workers
@@ -22,7 +22,8 @@ from pathlib import Path
 
 from chpf.console import run_main
 from chpf.errors import ConfigError
-from chpf.outdir import lock_output_path
+from chpf.objects import MESH_UNITS
+from chpf.outdir import check_out_dir, check_out_file, lock_output_path
 from data_gen import config as C
 
 
@@ -42,9 +43,19 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _add_unit(p: argparse.ArgumentParser, what: str = "a mesh file") -> None:
+    p.add_argument("--unit", choices=list(MESH_UNITS), default="m", help=f"unit of {what}")
+    p.add_argument(
+        "--allow-size",
+        action="store_true",
+        help="accept a mesh whose diameter is outside 1 cm - 2 m (default: refuse, naming the "
+        "unit that fits)",
+    )
+
+
 def _add_object(p: argparse.ArgumentParser) -> None:
     p.add_argument("--object", required=True, help="built-in name (mug, box, can, drill) or mesh")
-    p.add_argument("--unit", choices=["m", "mm"], default="m", help="unit of a mesh file")
+    _add_unit(p)
     p.add_argument("--size", type=int, help="crop size S (overrides crop.size)")
     p.add_argument("--codebook-size", type=int, help="codebook grid entries (codebook.size)")
     p.add_argument(
@@ -87,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help="comma-separated objects; the first is the target, others distractors",
     )
-    p.add_argument("--unit", choices=["m", "mm"], default="m", help="unit of mesh files")
+    _add_unit(p, "mesh files")
     p.add_argument("--out", type=Path, required=True, help="BOP dataset root to write")
     p.add_argument("--split", default="test", help="split folder name")
     p.add_argument("--num-scenes", type=int, help="sequences.num_scenes")
@@ -151,7 +162,7 @@ def _cmd_samples(args: argparse.Namespace) -> int:
             "shards.samples_per_shard": args.samples_per_shard,
         },
     )
-    obj = get_object(args.object, unit=args.unit)
+    obj = get_object(args.object, unit=args.unit, allow_size=args.allow_size)
     spec = CropSpec.for_object(obj.diameter, cfg["crop"]["size"])
     ctx = ComposerContext(
         obj=obj,
@@ -186,7 +197,7 @@ def _cmd_pool(args: argparse.Namespace) -> int:
 
     _positive("--workers", args.workers)
     cfg = _config(args, {"crop.size": args.size, "codebook.size": args.codebook_size})
-    obj = get_object(args.object, unit=args.unit)
+    obj = get_object(args.object, unit=args.unit, allow_size=args.allow_size)
     spec = CropSpec.for_object(obj.diameter, cfg["crop"]["size"])
     ctx = ComposerContext(
         obj, spec, cfg, str(args.cache_dir) if args.cache_dir else None, args.kind
@@ -227,6 +238,7 @@ def _cmd_sequences(args: argparse.Namespace) -> int:
         unit=args.unit,
         overwrite=args.overwrite,
         progress=not args.no_progress,
+        allow_size=args.allow_size,
     )
     print(
         f"sequences: {cfg['sequences']['num_scenes']} scenes x "
@@ -254,6 +266,10 @@ def _cmd_contact_sheet(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point (argv without the program name)."""
     args = build_parser().parse_args(argv)
+    if args.cmd in ("pairs", "ae", "sequences"):
+        check_out_dir(args.out)
+    elif args.cmd == "contact-sheet":
+        check_out_file(args.out)
     cmd = {
         "pairs": _cmd_samples,
         "ae": _cmd_samples,

@@ -58,11 +58,14 @@ class SceneObject:
 # ----------------------------------------------------------------------------- scene objects
 
 
-def resolve_objects(names: list[str], unit: str, cfg: dict) -> list[SceneObject]:
-    """Target (names[0]), distractors (names[1:]) and, if occlusion is on, an occluder."""
+def resolve_objects(
+    names: list[str], unit: str, cfg: dict, allow_size: bool = False
+) -> list[SceneObject]:
+    """Target (names[0]), distractors (names[1:]) and, if occlusion is on, an occluder.
+    Meshes of implausible size are refused unless ``allow_size`` (``chpf.objects.check_size``)."""
     from chpf.objects import BUILTIN_OBJECTS, get_object
 
-    objs = [get_object(n, unit=unit) for n in names]
+    objs = [get_object(n, unit=unit, allow_size=allow_size) for n in names]
     if len(objs) == 1:  # only the target: built-in distractors
         from chpf.objects import builtin_object
 
@@ -467,16 +470,18 @@ def generate_sequences(
     unit: str = "m",
     overwrite: bool = False,
     progress: bool = True,
+    allow_size: bool = False,
 ) -> dict:
     """Write ``cfg['sequences']['num_scenes']`` scenes to the BOP root ``out``; returns the
-    sequences_info dict (also written to ``out/sequences_info.json``)."""
+    sequences_info dict (also written to ``out/sequences_info.json``). ``allow_size``: accept
+    meshes outside 1 cm - 2 m."""
     from chpf.render import Renderer
 
     root = Path(out)
     if root.exists() and not root.is_dir():
         raise DatasetError(f"{root}: exists and is not a folder")
     sc = cfg["sequences"]
-    scene_objs = resolve_objects(names, unit, cfg)
+    scene_objs = resolve_objects(names, unit, cfg, allow_size)
     info = _info_dict(names, scene_objs, cfg, seed, split)
     _prepare(root, info, overwrite)
     root.mkdir(parents=True, exist_ok=True)

@@ -12,7 +12,8 @@ import time
 
 from chpf import __version__
 from chpf.console import run_main
-from chpf.outdir import lock_output_path
+from chpf.objects import MESH_UNITS
+from chpf.outdir import check_out_dir, lock_output_path
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,7 +38,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, help="onnxruntime threads during export (default 2)")
     p.add_argument("--workers", type=int, help="render processes for the codebook (default 2)")
     p.add_argument("--cache-dir", help="render pool cache folder (default: data_gen's)")
-    p.add_argument("--unit", choices=["m", "mm"], help="unit of a mesh file (default m)")
+    p.add_argument("--unit", choices=list(MESH_UNITS), help="unit of a mesh file (default m)")
+    p.add_argument(
+        "--allow-size",
+        action="store_true",
+        help="accept a mesh whose diameter is outside 1 cm - 2 m (default: refuse)",
+    )
     p.add_argument(
         "--overwrite", action="store_true", help="replace a bundle of another object in --out"
     )
@@ -49,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the export; returns 0 (errors raise ChpfError, printed as one line by ``cli``)."""
     args = build_parser().parse_args(argv)
+    check_out_dir(args.out)  # before the checkpoints are read and the codebook rendered
     # heavy imports (torch) after argument parsing so --help stays fast
     from chpf.config_schema import load
     from export.config import ExportConfig
@@ -77,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
             cfg,
             overwrite=args.overwrite,
             progress=not args.quiet,
+            allow_size=args.allow_size,
         )
     m = res.manifest
     worst = max(res.parity.values())

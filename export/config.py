@@ -25,7 +25,7 @@ class ExportConfig(Section):
     threads: onnxruntime intra-op threads used during the export.
     workers: render processes for the codebook pool (used when it is not cached yet).
     cache_dir: render-pool cache folder (None = data_gen's default).
-    unit: unit of a mesh file given as --object ("m" or "mm").
+    unit: unit of a mesh file given as --object ("m", "cm" or "mm").
     """
 
     codebook_size: int = setting(DEFAULT_CODEBOOK_SIZE, ge=1)
@@ -36,7 +36,7 @@ class ExportConfig(Section):
     threads: int = setting(2, ge=1)
     workers: int = setting(2, ge=1)
     cache_dir: str | None = None
-    unit: Literal["m", "mm"] = "m"
+    unit: Literal["m", "cm", "mm"] = "m"
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "export config") -> ExportConfig:

@@ -138,21 +138,27 @@ def export_bundle(
     overwrite: bool = False,
     progress: bool = True,
     pool_fn: PoolFn = render_pool,
+    allow_size: bool = False,
 ) -> ExportResult:
     """Export the two checkpoints and a codebook for ``obj`` into the bundle folder ``out``.
 
-    ``obj`` is a built-in name, a mesh path or an ObjectModel. Raises ConfigError (bad or wrong
-    type of checkpoint) or BundleError (inconsistent models, parity failure, OUT holds another
-    object); in every error case nothing is written.
+    ``obj`` is a built-in name, a mesh path or an ObjectModel. Raises MeshError (also for a mesh
+    whose diameter is outside 1 cm - 2 m, unless ``allow_size``), ConfigError (bad or wrong type
+    of checkpoint) or BundleError (inconsistent models, parity failure, OUT holds another
+    object), all before any rendering; in every error case nothing is written.
     """
     cfg = config or ExportConfig()
     out = Path(out)
     ae_path, ch_path = Path(ae_ckpt), Path(ch_ckpt)
     where = f"{ae_path.name} + {ch_path.name}"
+    model = (
+        obj
+        if isinstance(obj, ObjectModel)
+        else get_object(str(obj), unit=cfg.unit, allow_size=allow_size)
+    )
+    check_out(out, model.name, overwrite)
     ae, ae_info = load_autoencoder(ae_path)
     ch, ch_info = load_classifier(ch_path)
-    model = obj if isinstance(obj, ObjectModel) else get_object(str(obj), unit=cfg.unit)
-    check_out(out, model.name, overwrite)
     _check_models(ae, ch, ae_info, ch_info, model, where)
     size = ae.encoder.size
     spec = resolve_spec(model, ae_info, ch_info, size, where)

@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_readme_python_api_example_runs():
     text = (ROOT / "README.md").read_text()
-    section = text[text.index("### Python API") :]
+    section = text[text.index("## Python API") :]
     code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     out = subprocess.run(
         [sys.executable, "-c", code],

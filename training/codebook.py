@@ -24,6 +24,7 @@ import numpy as np
 from chpf.atomic import atomic_save_npz
 from chpf.console import run_main
 from chpf.errors import DatasetError
+from chpf.objects import MESH_UNITS
 
 
 def render_eval_codebook(
@@ -47,7 +48,7 @@ def render_eval_codebook(
 
     man = read_manifest(data_dir)
     name = object_name or man.get("object")
-    obj = get_object(str(name), unit=unit)
+    obj = get_object(str(name), unit=unit, allow_size=True)  # size decided by chpf-gen-data
     fp = man.get("object_fingerprint")
     if fp and object_fingerprint(obj) != fp:
         raise DatasetError(
@@ -95,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--k", type=int, default=4096, help="codebook size (uniform SO(3) grid)")
     p.add_argument("--out", required=True, help="output .npz")
     p.add_argument("--object", default=None, help="built-in name or mesh (default: manifest's)")
-    p.add_argument("--unit", default="m", choices=["m", "mm"], help="mesh file unit")
+    p.add_argument("--unit", default="m", choices=list(MESH_UNITS), help="mesh file unit")
     p.add_argument("--cache-dir", default=None, help="data_gen pool cache folder")
     p.add_argument("--workers", type=int, default=1)
     a = p.parse_args(argv)

@@ -6,11 +6,16 @@
    ground-truth box of scene_gt_info.json with noise and missed frames; NOT a real detector).
    If the dataset root holds ``detections_sim.json`` (written by ``chpf-gen-data sequences``)
    its boxes are used; otherwise the detector runs on the fly on scene_gt_info.json.
+
+``BoxChecker`` checks every box a tracker is given (the API's and the box sources'): text or
+other non-numbers are an InputError; an invalid box (zero or negative size, non-finite, not 4
+numbers) makes the frame predict-only, with one InvalidBoxWarning per run naming the frame.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -23,14 +28,48 @@ from chpf.bop import (
     scene_dir,
 )
 from chpf.detections import SIMULATED_DETECTOR_DEFAULTS, SimulatedDetector
-from chpf.errors import DatasetError
+from chpf.errors import DatasetError, InputError
+from chpf.tracking.candidates import valid_box
 from chpf.tracking.types import Box
+from chpf.tracking.warn import InvalidBoxWarning, OnceWarner
+
+
+class BoxChecker(OnceWarner):
+    """Checks the boxes of one run (see the module docstring); ``origin`` names where they come
+    from in the warning (a detections file, "Tracker.step")."""
+
+    def __init__(self, origin: str) -> None:
+        super().__init__(InvalidBoxWarning)
+        self.origin = origin
+
+    def check(self, box: Any, frame: str) -> Box | None:
+        """The box as 4 floats, or None (no box, or an invalid one: warned once per run)."""
+        if box is None:
+            return None
+        if isinstance(box, (str, bytes)):
+            raise InputError(f"box must be 4 numbers (x, y, w, h) in pixels, got text {box!r}")
+        try:
+            values = np.asarray(box, dtype=np.float64).ravel()
+        except (TypeError, ValueError):
+            raise InputError(
+                f"box must be 4 numbers (x, y, w, h) in pixels, got {type(box).__name__} {box!r}"
+            ) from None
+        checked = valid_box(box)
+        if checked is None:
+            shown = ", ".join(f"{v:g}" for v in values)
+            self.warn(
+                f"{self.origin}: {frame}: invalid box ({shown}) (needs 4 finite numbers x, y, w, "
+                "h with w, h > 0); tracked without a box"
+            )
+        return checked
 
 
 class BoxSource:
-    """Boxes per (scene_id, im_id, obj_id). ``description`` is printed as the run's first line."""
+    """Boxes per (scene_id, im_id, obj_id). ``description`` is printed as the run's first line;
+    ``origin`` names the boxes' file (or detector) in warnings."""
 
     description = ""
+    origin = "simulated detector"
     simulated = False
 
     def start_scene(self, scene: BopScene) -> None:
@@ -45,6 +84,7 @@ class FileBoxes(BoxSource):
 
     def __init__(self, path: Path, simulated: bool = False) -> None:
         self.boxes = read_detections(path)
+        self.origin = str(path)
         self.simulated = simulated
         what = (
             "simulated detector (noisy visible ground-truth boxes, not a real detector)"

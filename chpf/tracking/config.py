@@ -165,7 +165,10 @@ def make_config(
     elif isinstance(source, Mapping):
         data = source
     elif source is not None:
-        raise ConfigError(f"tracking config: unsupported source {type(source).__name__}")
+        raise ConfigError(
+            "tracking config: expected a TrackConfig, a dict of sections or a YAML file, got "
+            f"{type(source).__name__}"
+        )
     _refuse_flat_keys(data, where)
     _refuse_flat_keys(sections, "options")
     cfg = load(TrackConfig, data=data, base=base, where=where)

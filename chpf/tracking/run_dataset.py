@@ -19,10 +19,11 @@ from tqdm import tqdm
 
 from chpf.bop import BopDataset, BopScene, ResultRow, ResultsAppender
 from chpf.metrics import add, adds
-from chpf.tracking.boxes import BoxSource
+from chpf.tracking.boxes import BoxChecker, BoxSource
 from chpf.tracking.runlog import FrameLog
 from chpf.tracking.timing import add_ms
 from chpf.tracking.tracker import Tracker
+from chpf.tracking.warn import MissingDepthWarning, OnceWarner
 
 
 def method_tag(method: str) -> str:
@@ -78,7 +79,8 @@ def run_dataset(
     """Run every tracker over the scenes (see module docstring); returns per-method outputs.
 
     ``points`` (M,3) metres: model points for the per-frame ADD / ADD-S in the logs (None: no
-    errors logged). Depth is read only for trackers with modality "rgbd".
+    errors logged). Depth is read only for trackers with modality "rgbd"; a frame without its
+    depth image is tracked with RGB only, and an invalid box as no box (each warned once).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -87,6 +89,8 @@ def run_dataset(
     appenders = {m: ResultsAppender(r.results) for m, r in runs.items()}
     logs = {m: FrameLog(r.log) for m, r in runs.items()}
     want_depth = any(t.modality == "rgbd" for t in trackers.values())
+    checker = BoxChecker(boxes.origin)
+    no_depth = OnceWarner(MissingDepthWarning)
     try:
         scenes = [(sid, dataset.scene(split, sid)) for sid in scene_ids]
         total = sum(len(s.image_ids()) for _, s in scenes) * len(trackers)
@@ -104,8 +108,16 @@ def run_dataset(
                 for im in ims:
                     rgb = scene.rgb(im)
                     depth = scene.depth(im) if want_depth else None
+                    if want_depth and depth is None:
+                        no_depth.warn(
+                            f"{scene.depth_path(im)}: no depth image for scene {sid} image {im} "
+                            "of an RGB-D run; tracked with RGB only"
+                        )
                     K = scene.camera(im).K
-                    box = boxes.box(scene, im, obj_id, rgb.shape[1], rgb.shape[0])
+                    box = checker.check(
+                        boxes.box(scene, im, obj_id, rgb.shape[1], rgb.shape[0]),
+                        f"scene {sid} image {im}",
+                    )
                     gt = _gt_pose(scene, im, obj_id)
                     key = (sid, im, obj_id)
                     for m in todo:

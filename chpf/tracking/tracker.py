@@ -18,6 +18,8 @@ import numpy as np
 
 from chpf.bundle import Bundle
 from chpf.errors import BundleError, ConfigError, ImageSizeError
+from chpf.geometry import check_image_size
+from chpf.tracking.boxes import BoxChecker
 from chpf.tracking.bundle_likelihood import BundleLikelihood
 from chpf.tracking.candidates import CandidateSampler
 from chpf.tracking.codebook_candidates import CodebookRotations
@@ -41,7 +43,8 @@ def limit_library_threads(n: int) -> None:
 
 
 def check_frame(rgb: np.ndarray, depth: np.ndarray | None, K: np.ndarray) -> np.ndarray:
-    """Validate an input frame; returns K as (3,3) float64. ImageSizeError on a mismatch."""
+    """Validate an input frame; returns K as (3,3) float64. ImageSizeError on a mismatch (also
+    when the image's size is not about (2 cx + 1, 2 cy + 1): see ``check_image_size``)."""
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise ImageSizeError(f"rgb image must be (H,W,3) uint8, got {rgb.shape} {rgb.dtype}")
@@ -51,12 +54,7 @@ def check_frame(rgb: np.ndarray, depth: np.ndarray | None, K: np.ndarray) -> np.
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise ImageSizeError(f"K must be a finite (3,3) matrix with positive focals, got {K}")
-    cx, cy = K[0, 2], K[1, 2]
-    if not (0 <= cx < w and 0 <= cy < h):
-        raise ImageSizeError(
-            f"principal point ({cx:g}, {cy:g}) of K lies outside the {w}x{h} image "
-            "(image size and K disagree)"
-        )
+    check_image_size(w, h, K)
     if depth is not None:
         d = np.asarray(depth)
         if d.shape != (h, w):
@@ -136,6 +134,8 @@ class Tracker:
         self.filter: Filter = make_filter(
             method, self.likelihood, cfg, self.candidates, np.random.default_rng(self.seed)
         )
+        self.boxes = BoxChecker("Tracker.step")  # warns once per tracker
+        self.frame = 0  # frames stepped since the last reset
 
     @classmethod
     def from_bundle(
@@ -170,6 +170,7 @@ class Tracker:
         """Start a new sequence (optionally with a new seed: an int or a tuple of ints)."""
         if seed is not None:
             self.seed = seed
+        self.frame = 0
         self.filter.reset()
         self.filter.rng = np.random.default_rng(self.seed)  # type: ignore[attr-defined]
 
@@ -181,11 +182,14 @@ class Tracker:
         box: Box | None = None,
     ) -> TrackResult:
         """One frame: rgb (H,W,3) uint8, depth (H,W) float32 m or None (non-finite or negative
-        values are missing, as 0 is), K (3,3), box (x,y,w,h) pixels or None (predict only).
-        Returns a TrackResult (pose R, t metres, alpha, ...)."""
+        values are missing, as 0 is), K (3,3), box (x,y,w,h) pixels or None (predict only; an
+        invalid box too, warned once: see ``chpf.tracking.boxes.BoxChecker``; text is an
+        InputError). Returns a TrackResult (pose R, t metres, alpha, ...)."""
         K_arr = check_frame(rgb, depth, K)  # type: ignore[arg-type]
+        checked = self.boxes.check(box, f"frame {self.frame}")
         if self.modality == "rgb":
             depth = None
         elif depth is not None:
             depth = depth_in_metres(depth)
-        return self.filter.step(Frame(rgb=rgb, depth=depth, K=K_arr, box=box))
+        self.frame += 1
+        return self.filter.step(Frame(rgb=rgb, depth=depth, K=K_arr, box=checked))

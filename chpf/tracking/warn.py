@@ -1,4 +1,4 @@
-"""The warning the filters give when a frame's weights are all zero or NaN."""
+"""Warnings given once per run: weight collapses, invalid detection boxes, missing depth."""
 
 from __future__ import annotations
 
@@ -9,20 +9,39 @@ class WeightCollapseWarning(RuntimeWarning):
     """All importance weights of a frame were zero or NaN: the filter reinvigorated fully."""
 
 
-class CollapseWarner:
+class InvalidBoxWarning(UserWarning):
+    """A detection box was not 4 finite numbers with positive width and height: the frame was
+    tracked without a box (predict only)."""
+
+
+class MissingDepthWarning(UserWarning):
+    """A frame of an RGB-D run had no depth image: it was tracked with RGB only."""
+
+
+class OnceWarner:
+    """Warns on the first event of a kind (per run) and counts them all."""
+
+    def __init__(self, category: type[Warning]) -> None:
+        self.category = category
+        self.count = 0
+
+    def warn(self, message: str) -> None:
+        """Record an event; warn with ``message`` on the first one."""
+        self.count += 1
+        if self.count == 1:
+            warnings.warn(f"{message} (warned once per run)", self.category, stacklevel=3)
+
+
+class CollapseWarner(OnceWarner):
     """Warns once per filter (per run) on a weight collapse and counts the collapses."""
 
     def __init__(self, name: str) -> None:
+        super().__init__(WeightCollapseWarning)
         self.name = name
-        self.count = 0
 
     def collapse(self) -> None:
         """Record a collapsed frame; warn on the first one."""
-        self.count += 1
-        if self.count == 1:
-            warnings.warn(
-                f"{self.name}: all particle weights are zero or NaN; reinvigorating every "
-                "particle from the candidate distribution (warned once per run)",
-                WeightCollapseWarning,
-                stacklevel=3,
-            )
+        self.warn(
+            f"{self.name}: all particle weights are zero or NaN; reinvigorating every particle "
+            "from the candidate distribution"
+        )

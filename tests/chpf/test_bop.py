@@ -401,7 +401,7 @@ def test_image_size_header(tmp_path: Path) -> None:
 def test_writers_reject_bad_arrays(tmp_path: Path) -> None:
     with pytest.raises(ValueError):
         bop.write_rgb(tmp_path / "a.png", np.zeros((4, 4), np.uint8))
-    with pytest.raises(ValueError, match="uint16"):
+    with pytest.raises(DatasetError, match=r"uint16 .* \(at most 6\.55 m; raise depth"):
         bop.write_depth(tmp_path / "d.png", np.full((4, 4), 10.0), depth_scale=0.1)
     bop.write_depth(tmp_path / "d.png", np.full((4, 4), 10.0), depth_scale=1.0)
     assert not list(tmp_path.glob(".*tmp"))

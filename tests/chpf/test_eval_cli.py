@@ -15,6 +15,7 @@ from chpf import bop
 from chpf.bop import BopDataset, CameraInfo, GtPose, ModelInfo, ResultRow
 from chpf.eval_cli import cli, evaluate, format_table
 from chpf.metrics import adds_batch, auc
+from chpf.results import HEADER
 
 K = np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
 OFFSET = np.array([0.05, 0.0, 0.0])
@@ -110,7 +111,10 @@ def test_missing_frames_and_best_score(dataset: Path) -> None:
     assert e["add_auc"] == pytest.approx(100 * 11 / 16, abs=0.5)
     assert rep["objects"]["2"]["n"] == 10 and rep["objects"]["2"]["n_missing"] == 9
     assert rep["all"]["n"] == 26 and rep["all"]["n_missing"] == 14
-    assert rep["ignored_rows"] == 2  # `bad` is surplus, `nowhere` has no target
+    assert rep["ignored_rows"] == 1 and rep["duplicate_rows"] == 1  # `nowhere`; `bad` is surplus
+    assert rep["duplicate_example"] == {
+        "scene_id": 1, "im_id": 1, "obj_id": 1, "rows": 2, "instances": 1, "kept_score": 1.0
+    }  # fmt: skip
     only1 = evaluate(dataset, rows, "test", scenes=[1])
     assert only1["objects"]["1"]["add_auc"] == pytest.approx(100.0, abs=1e-6)
 
@@ -168,3 +172,47 @@ def test_cli_malformed_csv_exits_2(dataset: Path, tmp_path: Path, monkeypatch, c
     bop.write_results_csv(good, _gt_rows(dataset))
     code = _run_cli(monkeypatch, "--dataset", str(tmp_path / "nope"), "--results", str(good))
     assert code == 2 and "nope" in capsys.readouterr().err
+
+
+def _cli_lines(monkeypatch, capsys, dataset: Path, res: Path) -> tuple[int, list[str], list[str]]:
+    code = _run_cli(monkeypatch, "--dataset", str(dataset), "--results", str(res))
+    cap = capsys.readouterr()
+    return code, cap.out.splitlines(), cap.err.strip().splitlines()
+
+
+def test_cli_empty_results_are_refused(dataset: Path, tmp_path: Path, monkeypatch, capsys) -> None:
+    res = tmp_path / "empty.csv"
+    for text in ("", HEADER + "\n"):
+        res.write_text(text)
+        code, out, err = _cli_lines(monkeypatch, capsys, dataset, res)
+        assert code == 2 and out == [] and len(err) == 1, (out, err)
+        assert "empty.csv: no result rows" in err[0]
+
+
+def test_cli_duplicates_and_unknown_obj_ids_are_named(
+    dataset: Path, tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """Duplicate rows (two runs appended to one file) are called duplicates, with the row kept;
+    an obj_id the ground truth lacks, and objects of the dataset with no rows, are warned about
+    by id; results whose objects all lack ground truth are refused."""
+    rows = _gt_rows(dataset)
+    worse = ResultRow(1, 3, 1, 0.5, np.eye(3), np.array([0, 0, 3.0]))
+    stray = ResultRow(1, 3, 9, 0.5, np.eye(3), np.array([0, 0, 1.0]))
+    res = tmp_path / "two_runs.csv"
+    bop.write_results_csv(res, [*rows, rows[0], worse, stray])
+    code, out, err = _cli_lines(monkeypatch, capsys, dataset, res)
+    assert code == 0
+    text = "\n".join(out + err)
+    assert "matched no ground-truth instance" not in text
+    dup = [line for line in err if "duplicate rows" in line]
+    assert len(dup) == 1 and dup[0].startswith("warning: ") and "2 duplicate rows" in dup[0]
+    assert f"scene {rows[0].scene_id} image {rows[0].im_id} obj_id 1" in dup[0]
+    assert "best-scoring" in dup[0] and "kept" in dup[0]
+    ids = [line for line in err if "obj_id" in line and "ground truth" in line]
+    assert any("[9]" in line and "lacks" in line for line in ids), err
+    assert any("[2]" in line and "no result rows" in line for line in ids), err
+    assert len(err) == 3
+    only_stray = tmp_path / "stray.csv"
+    bop.write_results_csv(only_stray, [stray])
+    code, out, err = _cli_lines(monkeypatch, capsys, dataset, only_stray)
+    assert code == 2 and out == [] and len(err) == 1 and "obj_ids [9]" in err[0], err

@@ -342,3 +342,13 @@ def test_project_points_matches_hand_values_and_opencv():
     assert uv.shape == (2, 50, 2)
     ref, _ = cv2.projectPoints(pts.reshape(-1, 3), np.zeros(3), np.zeros(3), K, None)
     np.testing.assert_allclose(uv.reshape(-1, 2), ref.reshape(-1, 2), atol=1e-9)
+
+
+def test_check_image_size_against_the_principal_point():
+    K = np.array([[600.0, 0, 319.5], [0, 600, 239.5], [0, 0, 1]])
+    geo.check_image_size(640, 480, K)
+    geo.check_image_size(600, 500, K)  # within 20 %: an off-centre principal point is fine
+    for w, h in ((320, 240), (640, 240), (1280, 480), (640, 370)):
+        with pytest.raises(geo.ImageSizeError, match=f"image is {w}x{h} .* 640x480"):
+            geo.check_image_size(w, h, K)
+    geo.check_image_size(640, 370, K, tol=0.3)

@@ -181,3 +181,27 @@ def test_get_object_and_fingerprint(tmp_path):
     assert len(object_fingerprint(a)) == 40
     with pytest.raises(MeshError):
         builtin_object("teapot")
+
+
+def test_implausible_sizes_are_refused_naming_the_unit_that_fits(tmp_path):
+    """Diameters outside 1 cm - 2 m are refused with the unit that would fit (the 0.37 m box
+    written in mm and read as metres is 374 m), unless allow_size."""
+    mm, cm, m = tmp_path / "mm.ply", tmp_path / "cm.ply", tmp_path / "m.ply"
+    box_mesh(1000.0).export(mm)
+    box_mesh(100.0).export(cm)
+    box_mesh().export(m)
+    cases = ((mm, "m", "mm"), (cm, "m", "cm"), (m, "mm", "m"), (mm, "cm", "mm"))
+    for path, unit, fits in cases:
+        with pytest.raises(MeshError) as err:
+            get_object(str(path), unit=unit)
+        msg = str(err.value)
+        assert msg.startswith(f"{path}: diameter ") and "outside 1 cm - 2 m" in msg, msg
+        assert f"--unit {fits}" in msg and "--allow-size" in msg, msg
+        scale = {"mm": 1000.0, "cm": 100.0, "m": 1.0}
+        got = get_object(str(path), unit=unit, allow_size=True).diameter
+        assert got == pytest.approx(BOX_DIAMETER * scale[fits] / scale[unit])
+    assert get_object(str(cm), unit="cm").diameter == pytest.approx(BOX_DIAMETER)
+    tiny = tmp_path / "tiny.ply"
+    box_mesh(0.001).export(tiny)  # 0.37 mm in metres: no unit makes it 1 cm - 2 m
+    with pytest.raises(MeshError, match=r"outside 1 cm - 2 m: no unit"):
+        get_object(str(tiny), unit="mm")

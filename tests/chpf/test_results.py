@@ -159,3 +159,17 @@ def test_detections_errors(tmp_path: Path) -> None:
     path.write_text(json.dumps([{"scene_id": 1, "image_id": 1, "bbox": [1, 2, 3, 4]}]))
     with pytest.raises(BopFormatError, match="category_id"):
         read_detections(path)
+
+
+def test_a_header_with_a_renamed_column_is_named(tmp_path: Path) -> None:
+    """Before: "scene_id 'scene_id' is not an integer"; now the header and the column are named."""
+    path = tmp_path / "r.csv"
+    row = "1,1,1,0.9,1 0 0 0 1 0 0 0 1,0 0 800,0.1\n"
+    path.write_text(HEADER.replace("obj_id", "object") + "\n" + row)
+    with pytest.raises(ResultsFormatError) as err:
+        read_results_csv(path)
+    msg = str(err.value)
+    assert msg.startswith(f"{path}:1: header is wrong: expected column 'obj_id'")
+    assert "found 'object'" in msg
+    path.write_text(" scene_id, im_id,obj_id,score,R,t,time\n" + row)  # spaces are fine
+    assert len(read_results_csv(path)) == 1

@@ -141,3 +141,40 @@ def test_contact_sheet_of_sequence(seq_root, tmp_path):
     assert cli.main(["contact-sheet", str(seq_root), "--out", str(png), "--n", "4"]) == 0
     img = cv2.imread(str(png))
     assert img is not None and img.shape[1] > 4 * 160
+
+
+def test_mesh_in_millimetres_given_as_metres_is_refused(tmp_path, capsys):
+    """A mm mesh with --unit m (a 319.7 m box, rendered 643 m away) exits 2 in one line naming
+    --unit mm, before anything is written; --allow-size accepts it."""
+    import sys
+
+    from chpf.objects import get_object
+
+    mesh = get_object("box").mesh.copy()
+    mesh.apply_scale(1000.0)
+    path = tmp_path / "box_mm.ply"
+    mesh.export(path)
+    out = tmp_path / "seq"
+    argv = ["chpf-gen-data", "sequences", "--objects", str(path), "--unit", "m", "--out", str(out)]
+    saved = sys.argv
+    sys.argv = [*argv, *ARGS]
+    try:
+        with pytest.raises(SystemExit) as exc:
+            cli.cli()
+    finally:
+        sys.argv = saved
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1, err
+    assert "diameter 319.7 m" in err[0] and "--unit mm" in err[0]
+    assert not out.exists() or not any(p.name != ".seq.chpf.lock" for p in out.iterdir())
+    args = ["--objects", str(path), "--unit", "mm", "--out", str(out), *ARGS]
+    assert cli.main(["sequences", *args]) == 0
+    with pytest.raises(SystemExit):  # argparse: --allow-size is a known flag, --unit cm too
+        cli.main(["sequences", "--objects", str(path), "--unit", "km", "--out", str(out)])
+    assert (
+        cli.build_parser()
+        .parse_args(
+            ["ae", "--object", "x", "--out", "o", "--n", "1", "--allow-size", "--unit", "cm"]
+        )
+        .allow_size
+    )

@@ -273,8 +273,8 @@ def test_export_config_rejects_unknown_keys(tmp_path):
     p.write_text("parity_samples: 1\n")
     with pytest.raises(ConfigError, match=r"export\.yaml: parity_samples: 1 is out of range"):
         ExportConfig.from_yaml(p)
-    p.write_text("unit: cm\n")
-    with pytest.raises(ConfigError, match="unit: expected one of m, mm"):
+    p.write_text("unit: km\n")
+    with pytest.raises(ConfigError, match="unit: expected one of m, cm, mm"):
         ExportConfig.from_yaml(p)
 
 
@@ -282,3 +282,25 @@ def test_export_default_yaml_documents_every_key_with_its_default():
     path = Path(__file__).resolve().parents[2] / "configs" / "export_default.yaml"
     assert yaml.safe_load(path.read_text()) == ExportConfig().to_dict()
     assert ExportConfig.from_yaml(path) == ExportConfig()
+
+
+def test_mesh_in_millimetres_given_as_metres_is_refused(env, tmp_path, capsys):
+    """The box written in mm and exported with --unit m (a 319.7 m object with obj_id 0) exits 2
+    in one line naming --unit mm, nothing written; --allow-size passes the size check (and
+    meets the next one: the checkpoints were trained on 'box')."""
+    mesh = get_object(OBJ).mesh.copy()
+    mesh.apply_scale(1000.0)
+    path = tmp_path / "box_mm.ply"
+    mesh.export(path)
+    out = tmp_path / "b"
+    argv = ["--ae", str(env["ae_ckpt"]), "--ch", str(env["chs_ckpt"]), "--object", str(path)]
+    argv += ["--unit", "m", "--out", str(out), "--quiet"]
+    with pytest.raises(SystemExit) as exit_info:
+        _run_cli(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exit_info.value.code == 2 and len(err) == 1, err
+    assert "diameter 319.7 m" in err[0] and "--unit mm" in err[0]
+    assert not out.exists()
+    with pytest.raises(SystemExit):
+        _run_cli([*argv, "--allow-size"])
+    assert "trained on object 'box', not 'box_mm'" in capsys.readouterr().err

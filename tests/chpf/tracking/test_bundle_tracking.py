@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -274,8 +275,13 @@ def test_tracker_same_seed_same_poses_and_reset(bundle, rendered_sequence):
 def test_tracker_rejects_bad_input(bundle, rendered_sequence, tmp_path):
     seq = rendered_sequence
     tr = Tracker.from_bundle(bundle, method="chpf")
-    with pytest.raises(ImageSizeError):  # K of a 640x480 camera on a 320x240 image
+    with pytest.raises(ImageSizeError):  # principal point outside the 320x240 image
         tr.step(seq.rgb[0], K=np.array([[500.0, 0, 400], [0, 500, 300], [0, 0, 1]]), box=None)
+    # the K of a 640x480 camera on the 320x240 image: its principal point (319.5, 239.5) still
+    # falls inside, and the pose came out 0.8 m off before the size was checked against K
+    K_vga = np.array([[600.0, 0, 319.5], [0, 600, 239.5], [0, 0, 1]])
+    with pytest.raises(ImageSizeError, match=r"image is 320x240 .* implies about 640x480"):
+        tr.step(seq.rgb[0], K=K_vga, box=seq.box(0))
     with pytest.raises(ImageSizeError):
         tr.step(seq.rgb[0], depth=np.zeros((10, 10), np.float32), K=seq.K)
     with pytest.raises(ImageSizeError):
@@ -290,6 +296,8 @@ def test_tracker_rejects_bad_input(bundle, rendered_sequence, tmp_path):
         Tracker.from_bundle(bundle, chpf={"c_mode": "depth"}, modality="rgb")
     with pytest.raises(ConfigError):
         Tracker.from_bundle(bundle, no_such_option=1)
+    with pytest.raises(ConfigError, match=r"expected a TrackConfig, a dict of sections .* list"):
+        Tracker(bundle, config=[("filter", {"n_particles": 7})])
     with pytest.raises(ConfigError, match=r"srl\.beta"):  # a key of the former flat form
         Tracker.from_bundle(bundle, srl_beta=0.5)
 
@@ -489,3 +497,28 @@ def test_shipped_bundle_chpf_alpha_rises_after_a_forced_collapse_and_the_estimat
     assert np.median(rot_err[40:]) < 10.0 and np.median(adds_errs[40:]) < 0.12
     assert np.median(add_errs[40:]) < 0.2
     assert alphas[50:].mean() < 0.1  # settled again
+
+
+def test_boxes_as_text_are_refused_and_invalid_boxes_warned_once(bundle, rendered_sequence):
+    """A box given as a string is a one-line InputError (was: a numpy ValueError); a box with
+    zero or negative size, a NaN or three numbers makes the frame predict-only with one warning
+    per tracker naming the first such frame (was: silently "no box")."""
+    from chpf.errors import InputError
+    from chpf.tracking.warn import InvalidBoxWarning
+
+    seq = rendered_sequence
+    tr = Tracker.from_bundle(bundle, method="chpf")
+    for text in ("10,20,30,40", b"1234", {"x": 1}):
+        with pytest.raises(InputError, match=r"box must be 4 numbers \(x, y, w, h\)"):
+            tr.step(seq.rgb[0], K=seq.K, box=text)
+    assert tr.step(seq.rgb[0], K=seq.K, box=seq.box(0)).weighed  # frame 0
+    bad = [(1, 2, 0, 4), (1, 2, -3, 4), (np.nan, 1, 2, 3), (1, 2, 3)]
+    with pytest.warns(InvalidBoxWarning) as rec:
+        for i, box in enumerate(bad, start=1):
+            assert not tr.step(seq.rgb[i], K=seq.K, box=box).weighed
+    assert len(rec) == 1
+    assert "frame 1: invalid box (1, 2, 0, 4)" in str(rec[0].message)
+    tr.reset()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # once per tracker, also after a reset
+        assert not tr.step(seq.rgb[0], K=seq.K, box=(0, 0, 0, 0)).ok

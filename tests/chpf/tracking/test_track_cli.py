@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -171,6 +173,39 @@ def test_refusals(template_bundle, dataset, tmp_path, capsys):
     assert code == 2 and len(err) == 1 and err[0].startswith("error: ")
 
 
+def test_bundle_of_another_object_with_the_same_obj_id_is_refused(
+    template_bundle, dataset, tmp_path, capsys
+):
+    """The dataset's obj_id 2 is another object: a diameter 5 % or more off the manifest's, or
+    (where chpf-gen-data recorded one) another mesh fingerprint, is refused naming both."""
+    other = tmp_path / "other_ds"
+    shutil.copytree(dataset, other)
+    info_path = other / "models" / "models_info.json"
+    info = json.loads(info_path.read_text())
+    info["2"]["diameter"] = 152.6  # mm; the box bundle's is 319.7
+    info_path.write_text(json.dumps(info))
+    argv = ["--bundle", template_bundle, "--dataset", other, "--out", tmp_path / "o"]
+    with pytest.raises(BundleError) as err:
+        main([str(a) for a in argv])
+    msg = str(err.value)
+    assert "obj_id 2" in msg and "319.7 mm" in msg and "152.6 mm" in msg
+    assert str(template_bundle / "manifest.json") in msg and str(info_path) in msg
+    assert not (tmp_path / "o").exists()
+
+    info["2"]["diameter"] = 319.7 * 1.03  # within the tolerance: the fingerprint decides
+    info_path.write_text(json.dumps(info))
+    seq_info_path = other / "sequences_info.json"
+    seq_info = json.loads(seq_info_path.read_text())
+    target = next(o for o in seq_info["objects"] if o["obj_id"] == 2)
+    target["fingerprint"] = "0" * 40
+    seq_info_path.write_text(json.dumps(seq_info))
+    with pytest.raises(BundleError, match=r"fingerprint 0000000000 but .* has 127c1257ba"):
+        main([str(a) for a in argv])
+    seq_info_path.unlink()  # no fingerprint recorded: the diameter agrees, tracking goes on
+    code, _ = _run(capsys, *argv, "--no-progress", "--no-plot")
+    assert code == 0
+
+
 def _console_script(argv: list[str], capsys) -> tuple[int, list[str]]:
     """Exit code and stderr lines of the chpf-track console script run with ``argv``."""
     saved = sys.argv
@@ -293,3 +328,38 @@ def test_second_writer_on_a_locked_out_folder_refuses(
         )[0]
         == 0
     )
+
+
+def test_invalid_detection_boxes_and_missing_depth_are_warned_once(
+    template_bundle, dataset, tmp_path
+):
+    """A detections file with zero-size boxes and an RGB-D dataset missing one depth PNG: one
+    warning line each (naming the first frame and the file), the run goes on (was: silent)."""
+    ds = tmp_path / "ds"
+    shutil.copytree(dataset, ds)
+    dets = json.loads((ds / "detections_sim.json").read_text())
+    target = sorted((d for d in dets if d["category_id"] == 2), key=lambda d: d["image_id"])
+    for d in target[2:4]:
+        d["bbox"][2] = 0.0
+    (tmp_path / "dets.json").write_text(json.dumps(dets))
+    first = target[2]
+    depth_png = ds / "test" / "000001" / "depth" / "000005.png"
+    depth_png.unlink()
+    argv = ["--bundle", template_bundle, "--dataset", ds, "--out", tmp_path / "o", "--no-plot"]
+    argv += ["--no-progress", "--detections", tmp_path / "dets.json", "--modality", "rgbd"]
+    root = Path(__file__).resolve().parents[3]
+    proc = subprocess.run(  # a process of its own: warnings as a user sees them
+        [sys.executable, "-m", "chpf.track_cli", *(str(a) for a in argv)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(root)},
+        timeout=300,
+    )
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 0, err
+    boxes = [line for line in err if "invalid box" in line]
+    depth = [line for line in err if "depth" in line]
+    assert len(boxes) == 1 and len(depth) == 1 and len(err) == 2, err
+    where = f"scene {first['scene_id']} image {first['image_id']}"
+    assert boxes[0].startswith("warning: ") and where in boxes[0] and "dets.json" in boxes[0]
+    assert depth[0].startswith("warning: ") and str(depth_png) in depth[0]
