@@ -74,8 +74,13 @@ def _check_range(key: str, value: Any, meta: Mapping[str, Any]) -> None:
                 raise Invalid(key, f"min {a} > max {b}")
 
 
+@dataclasses.dataclass
 class Section:
-    """Base of config dataclasses: settings are range-checked on construction, then check()."""
+    """Base of config dataclasses: settings are range-checked on construction, then check().
+
+    A dataclass itself, so that jsonargparse (LightningCLI) reads its subclasses as nested
+    groups of keys (``--model.encoder.kernel``) rather than as classes to pick by class_path.
+    """
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):  # type: ignore[arg-type]
@@ -223,10 +228,12 @@ def load(
     data: Mapping[str, Any] | None = None,
     base: T | None = None,
     where: str = "config",
+    prefix: str = "",
 ) -> T:
     """``base`` (default: cls()) updated by the YAML file ``path``, then ``data`` (named
     ``where`` in errors), then ``sets`` ("section.key=value"); checked. ConfigError (one line)
-    naming the source and the key on unknown keys, wrong types and out-of-range values."""
+    naming the source and the key (``data``'s keys after ``prefix``, e.g. "model.encoder.") on
+    unknown keys, wrong types and out-of-range values."""
     values = _values(base if base is not None else cls())
     sources = []
     if path is not None:
@@ -234,13 +241,13 @@ def load(
         _merge(cls, values, {} if doc is None else doc, str(path))
         sources.append(str(path))
     if data is not None and (data or not isinstance(data, Mapping)):
-        _merge(cls, values, data, where)
+        _merge(cls, values, data, where, prefix)
         sources.append(where)
     sets = list(sets)
     if sets:
         _merge(cls, values, parse_sets(sets), "--set")
         sources.append("--set")
-    return _build(cls, values, " + ".join(sources) or where)
+    return _build(cls, values, " + ".join(sources) or where, prefix)
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:

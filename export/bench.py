@@ -26,27 +26,21 @@ from typing import Any
 import numpy as np
 import torch
 
+from chpf.config_schema import load, read_yaml
 from chpf.console import run_main
+from chpf.errors import ConfigError
+from training.model_config import EncoderConfig
 
-POSERBPF_ENCODER: dict[str, Any] = {
-    "channels": [128, 256, 256, 512],
-    "kernel": 5,
-    "embedding_dim": 128,
-    "size": 128,
-}
+POSERBPF_ENCODER = EncoderConfig(channels=(128, 256, 256, 512), kernel=5, size=128)
 
 
-def default_encoder(config_path: str) -> dict[str, Any]:
+def default_encoder(config_path: str) -> EncoderConfig:
     """The encoder config of a training YAML (model.encoder); ConfigError if it has none."""
-    import yaml
-
-    from chpf.errors import ConfigError
-
-    try:
-        cfg = yaml.safe_load(Path(config_path).read_text())
-        return dict(cfg["model"]["encoder"])
-    except (OSError, yaml.YAMLError, KeyError, TypeError) as err:
-        raise ConfigError(f"{config_path}: no model.encoder ({type(err).__name__})") from None
+    doc = read_yaml(config_path)
+    encoder = doc.get("model", {}).get("encoder") if isinstance(doc, dict) else None
+    if not isinstance(encoder, dict):
+        raise ConfigError(f"{config_path}: no model.encoder")
+    return load(EncoderConfig, data=encoder, where=config_path, prefix="model.encoder.")
 
 
 def time_ms(fn: Callable[[], object], reps: int, warmup: int = 2, stat: str = "min") -> float:
@@ -105,7 +99,7 @@ def _row(label: str, cells: list[str], widths: list[int]) -> str:
 
 def bench_encoder(
     name: str,
-    cfg: dict[str, Any],
+    cfg: EncoderConfig,
     crops: np.ndarray,
     reps: int,
     encoder: torch.nn.Module | None = None,
@@ -213,22 +207,22 @@ def main(argv: list[str] | None = None) -> int:
 
     from export import onnx_export as ox
 
-    configs: list[tuple[str, dict[str, Any]]] = [("default", default_encoder(args.config))]
+    configs = [("default", default_encoder(args.config))]
     trained = None
     if args.ae:
         from training.checkpoints import load_autoencoder
 
         ae, _ = load_autoencoder(args.ae)
         trained = ae.encoder
-        configs = [("default (trained)", dict(ae.encoder.config))]
+        configs = [("default (trained)", ae.encoder.config)]
     if not args.skip_poserbpf:
         configs.append(("PoseRBPF-size", POSERBPF_ENCODER))
 
     results = []
     with tempfile.TemporaryDirectory(prefix="chpf-bench-crops-") as cache:
         for i, (name, cfg) in enumerate(configs):
-            crops = _crops(args.object, int(cfg["size"]), args.batch, Path(cache))
-            reps = args.reps if cfg["size"] <= 64 else max(3, args.reps // 3)
+            crops = _crops(args.object, cfg.size, args.batch, Path(cache))
+            reps = args.reps if cfg.size <= 64 else max(3, args.reps // 3)
             r = bench_encoder(name, cfg, crops, reps, trained if i == 0 else None)
             r["cfg"] = cfg
             r["crops"] = crops
@@ -236,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
                 sess = ox.make_session(r["onnx"], 2)
                 r["render_s"], r["embed_s"] = _codebook_seconds_per_1000(
                     args.object,
-                    int(cfg["size"]),
+                    cfg.size,
                     args.codebook_entries,
                     lambda c, s=sess: s.run(None, {"crops": c})[0],
                 )
@@ -254,10 +248,10 @@ def main(argv: list[str] | None = None) -> int:
     for r in results:
         c = r["cfg"]
         cells = [
-            str(c["size"]),
-            "-".join(map(str, c["channels"])),
-            str(c["kernel"]),
-            str(c["embedding_dim"]),
+            str(c.size),
+            "-".join(map(str, c.channels)),
+            str(c.kernel),
+            str(c.embedding_dim),
             f"{r['torch']:.2f}",
             f"{r['ort1']:.2f}",
             f"{r['ort2']:.2f}",

@@ -3,7 +3,7 @@
 Every checkpoint written by ``AELitModule`` / ``CHLitModule`` carries a ``"chpf"`` entry::
 
     {"model_type": "ae" | "ch", "format_version": 1,
-     "model_config": <encoder config (ae) | classifier config (ch)>,
+     "model_config": to_dict of the EncoderConfig (ae) | ClassifierConfig (ch),
      "crop": CropSpec dict or None, "object": manifest object name or None,
      "hparams": the module's hyper-parameters (plain dict)}
 
@@ -21,6 +21,7 @@ from typing import Any, TypeVar
 import torch
 
 from chpf.errors import ConfigError
+from training.model_config import ClassifierConfig, EncoderConfig, from_stored
 from training.models import Autoencoder, CHClassifier
 
 CHECKPOINT_FORMAT_VERSION = 1
@@ -77,24 +78,26 @@ def _model_state(ckpt: dict[str, Any], prefix: str = "model.") -> dict[str, torc
     return {k[len(prefix) :]: v for k, v in sd.items() if k.startswith(prefix)}
 
 
-def _load_model(path: str | os.PathLike, model_type: str, cls: type[M]) -> tuple[M, dict[str, Any]]:
+def _load_model(
+    path: str | os.PathLike, model_type: str, cls: type[M], config_cls: type
+) -> tuple[M, dict[str, Any]]:
     """``(cls(model_config) with the stored weights, in eval mode, chpf info)`` from a
     checkpoint of ``model_type``."""
     ckpt = load_checkpoint(path)
     info = _info(ckpt, Path(path), model_type)
-    model = cls(info["model_config"])
+    model = cls(from_stored(config_cls, info["model_config"], str(path)))
     _load_state(model, _model_state(ckpt), Path(path))
     return model.eval(), info
 
 
 def load_autoencoder(path: str | os.PathLike) -> tuple[Autoencoder, dict[str, Any]]:
     """``(Autoencoder in eval mode, chpf info)`` from an ``ae`` checkpoint."""
-    return _load_model(path, "ae", Autoencoder)
+    return _load_model(path, "ae", Autoencoder, EncoderConfig)
 
 
 def load_classifier(path: str | os.PathLike) -> tuple[CHClassifier, dict[str, Any]]:
     """``(CHClassifier in eval mode, chpf info)`` from a ``ch`` checkpoint."""
-    return _load_model(path, "ch", CHClassifier)
+    return _load_model(path, "ch", CHClassifier, ClassifierConfig)
 
 
 def _load_state(model: torch.nn.Module, state: dict[str, torch.Tensor], path: Path) -> None:

@@ -13,11 +13,13 @@ configs) picks bf16 mixed precision where the hardware computes it natively, els
 
 from __future__ import annotations
 
+import inspect
 import os
 import sys
 from pathlib import Path
 from typing import Any
 
+from chpf.config_schema import Section, load
 from chpf.console import run_main
 from chpf.errors import ConfigError
 from training.precision import auto_precision
@@ -34,6 +36,16 @@ def _classes(kind: str) -> tuple[type, type]:
     from training.lit import AELitModule, CHLitModule
 
     return (AELitModule, AEDataModule) if kind == "ae" else (CHLitModule, PairDataModule)
+
+
+def check_model_configs(model_class: type, model_cfg: Any, where: str) -> None:
+    """Range and cross-key checks of the model's typed configs (``training.model_config``) in
+    the parsed ``model`` namespace: ConfigError naming ``where`` and ``model.<arg>.<key>``
+    (LightningCLI has checked the keys and types already)."""
+    for name, param in inspect.signature(model_class).parameters.items():
+        if isinstance(param.default, Section):
+            data = model_cfg[name].as_dict()
+            load(type(param.default), data=data, where=where, prefix=f"model.{name}.")
 
 
 def _make_cli_class(kind: str) -> type:
@@ -68,6 +80,7 @@ def _make_cli_class(kind: str) -> type:
 
         def before_instantiate_classes(self) -> None:
             cfg = self.config
+            check_model_configs(self.model_class, cfg["model"], f"chpf-train {kind}")
             root = cfg["trainer.default_root_dir"] or os.getcwd()
             if cfg["checkpoint.dirpath"] is None:
                 cfg["checkpoint.dirpath"] = str(Path(root) / "checkpoints")
@@ -99,11 +112,10 @@ def _check_resume(kind: str, ckpt_path: str | None) -> None:
     checkpoint_info(ckpt_path, expect=kind)
 
 
-def train(kind: str, args: list[str]) -> dict[str, str | None]:
-    """Run ``chpf-train kind args``; returns ``{"best": path, "last": path}``."""
+def make_cli(kind: str, args: list[str]) -> Any:
+    """The ``LightningCLI`` of ``chpf-train kind args``: config parsed and checked, model,
+    data module and trainer instantiated, nothing run."""
     import warnings
-
-    from lightning.pytorch.callbacks import ModelCheckpoint
 
     model_class, data_class = _classes(kind)
     cli_class = _make_cli_class(kind)
@@ -111,7 +123,7 @@ def train(kind: str, args: list[str]) -> dict[str, str | None]:
     warnings.filterwarnings("ignore", message=".*args parameter is intended to run from within.*")
     warnings.filterwarnings("ignore", message=".*isinstance.treespec, LeafSpec.*")
     warnings.filterwarnings("ignore", message=".*Checkpoint directory .* exists and is not empty.*")
-    cli = cli_class(
+    return cli_class(
         model_class,
         data_class,
         args=args,
@@ -121,6 +133,13 @@ def train(kind: str, args: list[str]) -> dict[str, str | None]:
         auto_configure_optimizers=False,
         parser_kwargs={"prog": f"chpf-train {kind}"},
     )
+
+
+def train(kind: str, args: list[str]) -> dict[str, str | None]:
+    """Run ``chpf-train kind args``; returns ``{"best": path, "last": path}``."""
+    from lightning.pytorch.callbacks import ModelCheckpoint
+
+    cli = make_cli(kind, args)
     ckpt_path = cli.config["ckpt_path"]
     _check_resume(kind, ckpt_path)
     trainer = cli.trainer

@@ -93,7 +93,7 @@ def evaluate_ae(
 ) -> dict[str, Any]:
     """Retrieval figures of an autoencoder checkpoint on a held-out ae shard folder."""
     ae, _ = load_autoencoder(ae_path)
-    size = int(ae.config["size"])
+    size = ae.config.size
     reader = open_shards(data_dir, "ae")
     if shard_crop_size(reader) != size:
         raise ConfigError(

@@ -8,6 +8,7 @@ linear-warmup + cosine learning-rate decay, and write a ``"chpf"`` entry into ev
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import warnings
@@ -20,6 +21,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from chpf.config_schema import to_dict
 from chpf.errors import ConfigError, DatasetError
 from data_gen.config import default_config
 from training.checkpoints import (
@@ -35,7 +37,19 @@ from training.metrics import (
     roc_auc,
     symmetry_aware_angle,
 )
-from training.models import Autoencoder, CHClassifier, Preprocess, full_classifier_config
+from training.model_config import (
+    ClassifierConfig,
+    EncoderConfig,
+    PairsMix,
+    from_stored,
+    mix_overrides,
+)
+from training.models import Autoencoder, CHClassifier, Preprocess
+
+# Default configs of the modules' signatures (shared instances: the modules never change them).
+DEFAULT_ENCODER = EncoderConfig()
+DEFAULT_CLASSIFIER = ClassifierConfig()
+NO_MIX = PairsMix()
 
 # ----------------------------------------------------------------------------- shared pieces
 
@@ -147,8 +161,12 @@ class _ChpfModule(pl.LightningModule):
     model_type: str = ""
     model: torch.nn.Module
 
-    def __init__(self) -> None:
+    def __init__(self, init_args: Mapping[str, Any]) -> None:
+        """``init_args``: the subclass's ``locals()`` at the start of its ``__init__``, saved as
+        plain hyper-parameters (configs as dicts): what checkpoints and logs record."""
         super().__init__()
+        skip = ("self", "__class__")
+        self.save_hyperparameters({k: _plain(v) for k, v in init_args.items() if k not in skip})
         self.preprocess = Preprocess()
         self.data_info: dict[str, Any] = {}
 
@@ -195,7 +213,7 @@ class _ChpfModule(pl.LightningModule):
         return {
             "model_type": self.model_type,
             "format_version": CHECKPOINT_FORMAT_VERSION,
-            "model_config": self.model.config,
+            "model_config": to_dict(self.model.config),
             "crop": self.data_info.get("crop"),
             "object": self.data_info.get("object"),
             "object_fingerprint": self.data_info.get("object_fingerprint"),
@@ -251,6 +269,8 @@ def _fp32(*tensors: torch.Tensor) -> tuple[torch.Tensor, ...]:
 
 def _plain(obj: Any) -> Any:
     """Hyper-parameters as plain JSON-like Python (dicts, lists, numbers, strings)."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return to_dict(obj)
     if isinstance(obj, Mapping):
         return {str(k): _plain(v) for k, v in obj.items() if not str(k).startswith("_")}
     if isinstance(obj, (list, tuple)):
@@ -305,7 +325,8 @@ class AELitModule(_ChpfModule):
     """Augmented autoencoder: reconstruct the clean crop from the augmented one.
 
     Args:
-        encoder: encoder config dict (``training.models``); the decoder mirrors it.
+        encoder: the encoder (``training.model_config.EncoderConfig``); the decoder mirrors it
+            unless ``decoder_channels`` is set.
         lr: Adam learning rate (peak, after warm-up).
         weight_decay: Adam weight decay.
         bootstrap_ratio: share of the worst pixels averaged by the bootstrapped L2 loss.
@@ -334,7 +355,7 @@ class AELitModule(_ChpfModule):
 
     def __init__(
         self,
-        encoder: dict[str, Any] | None = None,
+        encoder: EncoderConfig = DEFAULT_ENCODER,
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         bootstrap_ratio: float = 0.25,
@@ -353,8 +374,7 @@ class AELitModule(_ChpfModule):
         match_temperature: float = 0.1,
         match_min_angle_deg: float = 20.0,
     ) -> None:
-        super().__init__()
-        self.save_hyperparameters()
+        super().__init__(locals())
         if not 0.0 < bootstrap_ratio <= 1.0:
             raise ConfigError(f"bootstrap_ratio must be in (0, 1], got {bootstrap_ratio}")
         self.model = Autoencoder(encoder)
@@ -365,7 +385,7 @@ class AELitModule(_ChpfModule):
         self._val_outputs: dict[str, list[torch.Tensor]] = {}
 
     def _model_size(self) -> int:
-        return int(self.model.config["size"])
+        return self.model.config.size
 
     def setup(self, stage: str) -> None:
         super().setup(stage)
@@ -478,7 +498,8 @@ class CHLitModule(_ChpfModule):
     """Counter-Hypothetical classifier: BCE on P(misaligned) (label = 1 - aligned).
 
     Args:
-        classifier: classifier config dict (``training.models``: encoder, head, share_twin).
+        classifier: the classifier (``training.model_config.ClassifierConfig``: encoder, head,
+            share_twin, shares_ae_encoder).
         init_from_ae: autoencoder checkpoint whose encoder initialises both branches (its
             encoder config replaces ``classifier.encoder``). Recommended: from scratch the
             classifier learns slowly.
@@ -509,14 +530,15 @@ class CHLitModule(_ChpfModule):
         candidate_codebook: npz of ``python -m training.codebook`` (grid rotations and clean
             crops of the object) for ``extra_pairs``.
         extra_pairs_mix: keys of the chpf-gen-data ``pairs`` config that the extra pairs draw
-            differently from the data (e.g. ``{hard_negative_share: 0.7}``).
+            differently from the data (e.g. ``{hard_negative_share: 0.7}``; null keys keep the
+            data's values).
     """
 
     model_type = "ch"
 
     def __init__(
         self,
-        classifier: dict[str, Any] | None = None,
+        classifier: ClassifierConfig = DEFAULT_CLASSIFIER,
         init_from_ae: str | None = None,
         freeze_encoder: bool = False,
         freeze_candidate: bool = False,
@@ -533,11 +555,10 @@ class CHLitModule(_ChpfModule):
         hard_neg_weight: float = 1.0,
         extra_pairs: int = 0,
         candidate_codebook: str | None = None,
-        extra_pairs_mix: dict[str, Any] | None = None,
+        extra_pairs_mix: PairsMix = NO_MIX,
         candidate_refresh_steps: int = 0,
     ) -> None:
-        super().__init__()
-        self.save_hyperparameters()
+        super().__init__(locals())
         if occluded_pos_weight <= 0 or hard_neg_weight <= 0:
             raise ConfigError("occluded_pos_weight and hard_neg_weight must be > 0")
         if extra_pairs < 0:
@@ -555,10 +576,8 @@ class CHLitModule(_ChpfModule):
                 "extra_pairs needs a candidate_codebook and freeze_candidate or "
                 "candidate_refresh_steps"
             )
-        unknown = set(extra_pairs_mix or {}) - set(default_config()["pairs"])
-        if unknown:
-            raise ConfigError(f"extra_pairs_mix: unknown pairs keys {sorted(unknown)}")
-        cfg = full_classifier_config(classifier)
+        self.extra_pairs_mix = extra_pairs_mix
+        cfg = classifier
         self.ae_info: dict[str, Any] | None = None
         for key, on in (("freeze_encoder", freeze_encoder), ("freeze_candidate", freeze_candidate)):
             if on and not init_from_ae:
@@ -567,12 +586,12 @@ class CHLitModule(_ChpfModule):
             raise ConfigError("freeze_encoder already freezes both branches: drop freeze_candidate")
         if init_from_ae:
             self.ae_info = checkpoint_info(init_from_ae, expect="ae")
-            cfg["encoder"] = dict(self.ae_info["model_config"])
+            ae_encoder = from_stored(EncoderConfig, self.ae_info["model_config"], init_from_ae)
+            cfg = dataclasses.replace(cfg, encoder=ae_encoder)
         if freeze_encoder:
-            cfg["share_twin"] = True
-            cfg["shares_ae_encoder"] = True
+            cfg = dataclasses.replace(cfg, share_twin=True, shares_ae_encoder=True)
         if freeze_candidate:
-            cfg["share_twin"] = False
+            cfg = dataclasses.replace(cfg, share_twin=False)
         self.model = CHClassifier(cfg)
         self._candidates: CandidateCodebook | None = None
         self._candidate_crops: np.ndarray | None = None
@@ -588,7 +607,7 @@ class CHLitModule(_ChpfModule):
         self._val_outputs: dict[str, list[torch.Tensor]] = {}
 
     def _model_size(self) -> int:
-        return int(self.model.config["encoder"]["size"])
+        return self.model.config.encoder.size
 
     def setup(self, stage: str) -> None:
         super().setup(stage)
@@ -713,7 +732,7 @@ class CHLitModule(_ChpfModule):
             )
         pairs_cfg = default_config()["pairs"]
         pairs_cfg.update(data_cfg.get("pairs", {}))
-        pairs_cfg.update(self.hparams.extra_pairs_mix or {})
+        pairs_cfg.update(mix_overrides(self.extra_pairs_mix))
         info = manifest.get("object_info")
         self._candidates = CandidateCodebook(cb["rotations"], emb, pairs_cfg, info)
         self._pair_rng = np.random.default_rng([torch.initial_seed(), self.global_rank])

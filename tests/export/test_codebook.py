@@ -10,9 +10,10 @@ from chpf.errors import BundleError
 from chpf.geometry import RotationGrid
 from export import onnx_export as ox
 from export.codebook import build_codebook, downsample_depth, embed_all
+from training.model_config import EncoderConfig, HeadConfig
 from training.models import CHHead, Encoder
 
-TINY = {"channels": [8, 16], "kernel": 3, "embedding_dim": 16, "size": 32}
+TINY = EncoderConfig(channels=(8, 16), kernel=3, embedding_dim=16, size=32)
 
 
 def test_downsample_depth_valid_mean():
@@ -63,7 +64,7 @@ def test_onnx_parity_and_refusal():
     emb = sess.run(None, {"crops": crops})[0]
     assert emb.shape == (7, 16)
     np.testing.assert_allclose(np.linalg.norm(emb, axis=1), 1.0, atol=1e-5)
-    head = CHHead(16, (8, 8)).eval()
+    head = CHHead(16, HeadConfig(hidden=(8, 8))).eval()
     hs = ox.make_session(ox.export_head(head), threads=1)
     inputs = {"obs": emb, "cand": np.ascontiguousarray(emb[::-1])}
     assert ox.check_parity("head", hs, ox.head_module(head), inputs) <= 1e-4

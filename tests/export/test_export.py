@@ -19,10 +19,11 @@ from export import onnx_export
 from export.config import ExportConfig
 from export.pipeline import export_bundle
 from training.lit import AELitModule, CHLitModule
+from training.model_config import ClassifierConfig, EncoderConfig, HeadConfig
 from training.models import HeadProbability, NormalizedEmbedder
 
 S, K, OBJ = 32, 64, "box"
-TINY = {"channels": [8, 16], "kernel": 3, "embedding_dim": 16, "size": S}
+TINY = EncoderConfig(channels=(8, 16), kernel=3, embedding_dim=16, size=S)
 
 
 def _save(module, path: Path, data_info: dict) -> Path:
@@ -48,7 +49,8 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> dict:
     info = {"crop": spec.to_dict(), "object": OBJ, "object_fingerprint": None}
     ae = AELitModule(encoder=TINY)
     ae_ckpt = _save(ae, root / "ae.ckpt", info)
-    ch = CHLitModule(classifier={"head": {"hidden": [32, 16]}}, init_from_ae=str(ae_ckpt))
+    head = HeadConfig(hidden=(32, 16))
+    ch = CHLitModule(classifier=ClassifierConfig(head=head), init_from_ae=str(ae_ckpt))
     ch.setup("fit")  # copies the AE encoder in; perturb so that the CH encoder differs
     with torch.no_grad():
         for p in ch.model.obs_encoder.parameters():
@@ -152,7 +154,7 @@ def test_manifest_and_files(env):
     assert m["object"]["name"] == OBJ and m["object"]["obj_id"] == 2
     assert m["object"]["diameter"] == pytest.approx(get_object(OBJ).diameter)
     assert m["crop"] == env["spec"].to_dict()
-    assert m["embedding_dim"] == TINY["embedding_dim"] and m["codebook_size"] == K
+    assert m["embedding_dim"] == TINY.embedding_dim and m["codebook_size"] == K
     assert m["ch_shares_ae_encoder"] is False
     assert m["files"]["ch_obs_encoder"] == "ch_encoder.onnx"
     assert set(m["sha256"]) == {f for f in m["files"].values() if f}

@@ -19,6 +19,7 @@ from training.codebook import codebook_arrays, save_codebook
 from training.data import PairDataModule
 from training.extra_pairs import CandidateCodebook
 from training.lit import CHLitModule
+from training.model_config import ClassifierConfig, EncoderConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -96,7 +97,7 @@ def test_refreshed_candidates_follow_the_trained_branch(
     imgs, R = pattern_images(64, 16, seed=5)
     save_codebook(tmp_path / "cb.npz", codebook_arrays(R, imgs))
     lit = CHLitModule(
-        {"encoder": {"channels": [8, 16], "kernel": 3, "embedding_dim": 16, "size": 16}},
+        ClassifierConfig(EncoderConfig(channels=(8, 16), kernel=3, embedding_dim=16, size=16)),
         lr=3e-3,
         warmup_steps=0,
         extra_pairs=4,

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
+import inspect
 import json
 import math
 import os
@@ -14,6 +16,7 @@ import pytest
 import torch
 import yaml
 
+from chpf.config_schema import to_dict
 from chpf.errors import ConfigError
 from training.checkpoints import (
     checkpoint_info,
@@ -21,9 +24,10 @@ from training.checkpoints import (
     load_classifier,
     state_sha256,
 )
-from training.cli import main
+from training.cli import main, make_cli
 from training.codebook import codebook_arrays, save_codebook
 from training.evaluate import main as evaluate_main
+from training.model_config import ClassifierConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 AE_CFG = str(ROOT / "configs" / "train_ae_tiny.yaml")
@@ -172,24 +176,66 @@ def test_bf16_mixed_precision_trains_and_validates(
 def test_shipped_configs_build_their_modules(
     kind: str, configs: list[str], ae_ckpt: Path, tmp_path: Path
 ) -> None:
-    """Each shipped config (and the documented combinations) builds its LightningModule, with
-    the required paths given as on the README's command lines."""
-    from training.lit import AELitModule, CHLitModule
-
-    model: dict = {}
-    for name in configs:
-        model.update(yaml.safe_load((ROOT / "configs" / name).read_text())["model"])
+    """Each shipped config (and the documented combinations) builds its LightningModule through
+    chpf-train's parser, with the required paths given as on the README's command lines."""
+    args = [a for name in configs for a in ("--config", str(ROOT / "configs" / name))]
+    args += ["--trainer.default_root_dir", str(tmp_path / "runs")]
+    if kind == "ch":
+        args += ["--model.init_from_ae", str(ae_ckpt)]
+        args += ["--model.candidate_codebook", str(tmp_path / "cb.npz")]  # read at train start
+    cli = make_cli(kind, args)
+    module, model = cli.model, cli.config["model"]
     if kind == "ae":
-        module = AELitModule(**model)
-        assert module.model.config["size"] in (64, 128)
+        assert module.model.config.size in (64, 128)
         return
-    model["init_from_ae"] = str(ae_ckpt)
-    if model.get("extra_pairs"):
-        model["candidate_codebook"] = str(tmp_path / "cb.npz")  # read when training starts
-    module = CHLitModule(**model)
     frozen = module._frozen_branch()
     if model.get("freeze_encoder") or model.get("freeze_candidate"):
         assert frozen is not None and not any(p.requires_grad for p in frozen.parameters())
     else:  # the default: one trained encoder serves both branches
         assert frozen is None and module.model.obs_encoder is module.model.cand_encoder
         assert all(p.requires_grad for p in module.model.parameters())
+
+
+@pytest.mark.parametrize("kind", ["ae", "ch"])
+def test_default_train_yaml_documents_every_model_key(kind: str, tmp_path: Path) -> None:
+    """configs/train_{kind}.yaml names every model argument and every key of its typed configs,
+    and chpf-train reads back exactly what it says; the classifier section holds the
+    ClassifierConfig defaults (its encoder is the autoencoder's at run time)."""
+    from training.lit import AELitModule, CHLitModule
+
+    path = ROOT / "configs" / f"train_{kind}.yaml"
+    written = yaml.safe_load(path.read_text())["model"]
+    module_class = AELitModule if kind == "ae" else CHLitModule
+    params = inspect.signature(module_class).parameters
+    assert set(written) == set(params)
+    for name, p in params.items():
+        if dataclasses.is_dataclass(p.default):
+            assert set(written[name]) == set(to_dict(p.default)), name
+    init = [] if kind == "ae" else ["--model.init_from_ae", "null", "--model.extra_pairs", "0"]
+    root = ["--trainer.default_root_dir", str(tmp_path)]
+    parsed = make_cli(kind, ["--config", str(path), *root, *init]).config["model"].as_dict()
+    if kind == "ch":
+        assert written["classifier"] == to_dict(ClassifierConfig())
+        parsed["init_from_ae"], parsed["extra_pairs"] = written["init_from_ae"], 32
+    assert json.loads(json.dumps(parsed)) == written
+
+
+def test_unknown_and_out_of_range_model_keys_are_refused(
+    ae_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """LightningCLI refuses unknown keys of the typed model configs; out-of-range values are
+    one ConfigError line naming the dotted key."""
+    args = ["ae", "--config", AE_CFG, "--data.data_dir", str(ae_dir)]
+    args += ["--trainer.default_root_dir", str(tmp_path)]
+    with pytest.raises(SystemExit):
+        main([*args, "--model.encoder.kernal", "3"])
+    assert "--model.encoder.kernal" in capsys.readouterr().err
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("model:\n  encoder: {channels: [8, 16], bogus: 1}\n")
+    with pytest.raises(SystemExit):
+        main([*args, "--config", str(bad)])
+    assert "bogus" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match=r"^chpf-train ae: model\.encoder\.kernel: must be odd"):
+        main([*args, "--model.encoder.kernel", "4"])
+    with pytest.raises(ConfigError, match=r"model\.encoder\.channels: 0 is out of range"):
+        main([*args, "--model.encoder.channels", "[8, 0]"])

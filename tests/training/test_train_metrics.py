@@ -221,6 +221,7 @@ def test_hard_auc_by_visibility_bands() -> None:
 def test_embed_of_no_crops_is_an_empty_matrix() -> None:
     """An empty crop array gives (0, E) embeddings, not an error."""
     from training.lit import AELitModule
+    from training.model_config import EncoderConfig
 
-    m = AELitModule({"channels": [8, 16], "size": 16, "embedding_dim": 16})
+    m = AELitModule(EncoderConfig(channels=(8, 16), size=16, embedding_dim=16))
     assert m.embed(np.zeros((0, 16, 16, 3), np.uint8)).shape == (0, 16)

@@ -2,22 +2,30 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
 
+from chpf.config_schema import to_dict
 from chpf.errors import ConfigError
 from training.lit import AELitModule, CHLitModule, bootstrapped_l2
-from training.models import (
-    CHClassifier,
-    Encoder,
-    NormalizedEmbedder,
-    Preprocess,
-    build_autoencoder,
-    build_encoder,
+from training.model_config import (
+    ClassifierConfig,
+    EncoderConfig,
+    HeadConfig,
+    PairsMix,
+    from_stored,
 )
+from training.models import Autoencoder, CHClassifier, Encoder, NormalizedEmbedder, Preprocess
 
-TINY = {"channels": [8, 16], "kernel": 3, "embedding_dim": 16, "size": 16}
+TINY_KEYS = {"channels": [8, 16], "kernel": 3, "embedding_dim": 16, "size": 16}
+TINY = EncoderConfig(channels=(8, 16), kernel=3, embedding_dim=16, size=16)
+
+
+def tiny(**changes) -> EncoderConfig:
+    return dataclasses.replace(TINY, **changes)
 
 
 def test_shapes_and_preprocess() -> None:
@@ -26,14 +34,14 @@ def test_shapes_and_preprocess() -> None:
     assert x.shape == (5, 3, 16, 16) and x.dtype == torch.float32
     assert torch.allclose(x[2, 1, 3, 4], crops[2, 3, 4, 1].float() / 255)
     assert x.is_contiguous(memory_format=torch.channels_last)
-    recon, z = build_autoencoder(TINY)(x)
+    recon, z = Autoencoder(TINY)(x)
     assert recon.shape == x.shape and z.shape == (5, 16)
     assert float(recon.detach().min()) >= 0 and float(recon.detach().max()) <= 1
-    emb = NormalizedEmbedder(build_encoder(TINY))(crops)
+    emb = NormalizedEmbedder(Encoder(TINY))(crops)
     assert torch.allclose(emb.norm(dim=1), torch.ones(5), atol=1e-5)
-    enc = Encoder((8, 16), 3, 16, 16)
-    assert enc.config == {
-        **TINY,
+    enc = Encoder(TINY)
+    assert to_dict(enc.config) == {
+        **TINY_KEYS,
         "activation": "relu",
         "decoder_norm": "none",
         "decoder_channels": None,
@@ -41,9 +49,9 @@ def test_shapes_and_preprocess() -> None:
 
 
 def test_classifier_twin_sharing() -> None:
-    shared = CHClassifier({"encoder": TINY})
+    shared = CHClassifier(ClassifierConfig(TINY))
     assert shared.obs_encoder is shared.cand_encoder and not shared.shares_ae_encoder
-    twin = CHClassifier({"encoder": TINY, "share_twin": False})
+    twin = CHClassifier(ClassifierConfig(TINY, share_twin=False))
     assert twin.obs_encoder is not twin.cand_encoder
     x = torch.rand(3, 3, 16, 16)
     assert shared(x, x).shape == (3,)
@@ -53,35 +61,41 @@ def test_classifier_twin_sharing() -> None:
 
 
 def test_bad_configs() -> None:
-    with pytest.raises(ConfigError, match="divisible"):
-        build_encoder({"channels": [8, 16, 32], "size": 20})
-    with pytest.raises(ConfigError, match="unknown keys"):
-        build_encoder({"chanels": [8]})
-    with pytest.raises(ConfigError, match="kernel"):
-        build_encoder({"kernel": 4})
+    with pytest.raises(ConfigError, match="size: 20 is not divisible"):
+        EncoderConfig(channels=(8, 16, 32), size=20)
+    with pytest.raises(ConfigError, match=r"x.ckpt: unknown key model_config\.chanels"):
+        from_stored(EncoderConfig, {"chanels": [8]}, "x.ckpt")
+    with pytest.raises(ConfigError, match="kernel: must be odd"):
+        EncoderConfig(kernel=4)
+    with pytest.raises(ConfigError, match="channels: 0 is out of range"):
+        EncoderConfig(channels=(8, 0))
+    with pytest.raises(ConfigError, match="hidden: 0 is out of range"):
+        HeadConfig(hidden=(0, 8))
     with pytest.raises(ConfigError, match="freeze_encoder"):
-        CHLitModule({"encoder": TINY}, freeze_encoder=True)
+        CHLitModule(ClassifierConfig(TINY), freeze_encoder=True)
     with pytest.raises(ConfigError, match="freeze_candidate needs init_from_ae"):
-        CHLitModule({"encoder": TINY}, freeze_candidate=True)
+        CHLitModule(ClassifierConfig(TINY), freeze_candidate=True)
     with pytest.raises(ConfigError, match="extra_pairs needs a candidate_codebook"):
-        CHLitModule({"encoder": TINY}, extra_pairs=4)
+        CHLitModule(ClassifierConfig(TINY), extra_pairs=4)
     with pytest.raises(ConfigError, match="candidate_refresh_steps is for a trained"):
-        CHLitModule({"encoder": TINY}, candidate_refresh_steps=10, freeze_encoder=True)
-    with pytest.raises(ConfigError, match=r"unknown pairs keys \['hard_share'\]"):
-        CHLitModule({"encoder": TINY}, extra_pairs_mix={"hard_share": 0.5})
-    with pytest.raises(ConfigError, match="activation"):
-        build_encoder({"activation": "gelu"})
-    with pytest.raises(ConfigError, match="decoder_norm"):
-        build_autoencoder({"decoder_norm": "layer"})
-    with pytest.raises(ConfigError, match="decoder_channels must be 2"):
-        build_autoencoder({**TINY, "decoder_channels": [8]})
+        CHLitModule(ClassifierConfig(TINY), candidate_refresh_steps=10, freeze_encoder=True)
+    with pytest.raises(TypeError, match="hard_share"):
+        PairsMix(hard_share=0.5)
+    with pytest.raises(ConfigError, match=r"hard_negative_share: 1.5 is out of range \[0.0, 1.0\]"):
+        PairsMix(hard_negative_share=1.5)
+    with pytest.raises(ConfigError, match=r"x.ckpt: model_config\.activation: expected one of"):
+        from_stored(EncoderConfig, {"activation": "gelu"}, "x.ckpt")
+    with pytest.raises(ConfigError, match=r"model_config\.encoder\.decoder_norm: expected one"):
+        from_stored(ClassifierConfig, {"encoder": {"decoder_norm": "layer"}}, "x.ckpt")
+    with pytest.raises(ConfigError, match="decoder_channels: must be 2"):
+        tiny(decoder_channels=(8,))
 
 
 def test_activation_and_decoder_norm_options() -> None:
     """leaky_relu reaches the encoder and the decoder; decoder_norm adds batch norms to the
     decoder only; configs without the keys (older checkpoints) build the plain ReLU network."""
-    plain = build_autoencoder(TINY)
-    leaky = build_autoencoder({**TINY, "activation": "leaky_relu", "decoder_norm": "batch"})
+    plain = Autoencoder(from_stored(EncoderConfig, TINY_KEYS, "old.ckpt"))
+    leaky = Autoencoder(tiny(activation="leaky_relu", decoder_norm="batch"))
     kinds = {type(m) for m in plain.modules()}
     assert torch.nn.ReLU in kinds and torch.nn.LeakyReLU not in kinds
     assert torch.nn.BatchNorm2d not in kinds
@@ -95,8 +109,8 @@ def test_activation_and_decoder_norm_options() -> None:
 def test_decoder_channels_set_the_decoder_widths_only() -> None:
     """decoder_channels narrows the decoder (from the smallest resolution up); the encoder, which
     is what gets exported, is the same network as with the mirrored decoder."""
-    narrow = build_autoencoder({**TINY, "decoder_channels": [6, 4]})
-    mirrored = build_autoencoder(TINY)
+    narrow = Autoencoder(tiny(decoder_channels=(6, 4)))
+    mirrored = Autoencoder(TINY)
     widths = [m.out_channels for m in narrow.decoder.modules() if hasattr(m, "out_channels")]
     assert widths == [4, 4, 3]  # 6 -> 4 (8x8), 4 -> 4 (16x16), output conv to RGB
     assert narrow.decoder.fc.out_features == 6 * 4 * 4
@@ -139,7 +153,7 @@ def test_ch_loss_goes_down_on_fixed_batch() -> None:
     angle = torch.where(aligned == 1, 5.0, 90.0)
     batch = {"obs_rgb": obs, "cand_rgb": cand, "aligned": aligned, "angle_deg": angle}
     batch["visib_fract"] = torch.ones(n)
-    lit = CHLitModule({"encoder": TINY, "head": {"hidden": [32, 16]}}, lr=3e-3)
+    lit = CHLitModule(ClassifierConfig(TINY, HeadConfig(hidden=(32, 16))), lr=3e-3)
     opt = torch.optim.Adam(lit.parameters(), lr=3e-3)
     losses = []
     for _ in range(40):
@@ -150,3 +164,21 @@ def test_ch_loss_goes_down_on_fixed_batch() -> None:
         losses.append(loss.item())
     assert losses[-1] < 0.5 * losses[0]
     assert np.isfinite(losses).all()
+
+
+def test_checkpoint_of_an_older_version_loads(tmp_path) -> None:
+    """A checkpoint written before the typed configs (plain-dict hparams, a model_config
+    without the later keys) loads as the plain ReLU network it holds, with its weights."""
+    from training.checkpoints import load_autoencoder
+
+    ae = Autoencoder(TINY)
+    ckpt = {
+        "state_dict": {f"model.{k}": v for k, v in ae.state_dict().items()},
+        "hyper_parameters": {"encoder": TINY_KEYS, "lr": 1e-3},
+        "chpf": {"model_type": "ae", "format_version": 1, "model_config": TINY_KEYS},
+    }
+    torch.save(ckpt, tmp_path / "old.ckpt")
+    loaded, _ = load_autoencoder(tmp_path / "old.ckpt")
+    assert loaded.config == TINY and loaded.config.activation == "relu"
+    for k, v in ae.state_dict().items():
+        assert torch.equal(loaded.state_dict()[k], v), k
