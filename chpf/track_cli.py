@@ -60,8 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--demo",
         action="store_true",
-        help="track the shipped short occluded sequence of "
-        "the shipped bundle's object with CH-PF and two baselines",
+        help="track the shipped short occluded sequence of the shipped bundle's object with "
+        "CH-PF, CH-RBPF, SRL and PoseRBPF",
     )
     p.add_argument("--bundle", type=Path, help="model bundle folder (default for --demo: shipped)")
     p.add_argument("--dataset", type=Path, help="BOP dataset root")

@@ -52,5 +52,5 @@ def test_readme_demo_table_is_what_the_demo_prints(tmp_path, capsys):
     text = (ROOT / "README.md").read_text()
     block = re.search(r"`chpf-track --demo --no-plot`.*?```text\n(.*?)```", text, re.S).group(1)
     readme = _auc_rows(block.splitlines())
-    assert [r[0] for r in readme] == ["chpf", "srl", "poserbpf"]
+    assert [r[0] for r in readme] == ["chpf", "chrbpf", "srl", "poserbpf"]
     assert printed == readme

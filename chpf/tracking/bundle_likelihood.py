@@ -18,7 +18,13 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
    that falls to 0 a few centimetres off the measured surface, would shrink it for every
    particle of a good belief and hold their alpha near 1 (a random search: ADD-S AUC 0 on
    a partly occluded box sequence). Depth's counter-evidence reaches CH-PF's alpha through
-   C_depth (``c_mode`` depth or both).
+   C_depth (``c_mode`` depth or both);
+6. box scale (``c_box``, a margin m, None = off): a hypothesis whose object would project
+   smaller than the detection box, by the ratio rho = box side / projected side (the codebook
+   entry's extent at the particle's z), is impossible (the box shows at most the whole object;
+   a larger hypothesis is explained by occlusion): C_box = clip((rho - 1 - m) / m, 0, 1), and C
+   becomes 1 - (1 - C)(1 - C_box). Neither network sees a wrong depth well (the crops are
+   scale-normalised): a belief at 1.4 x the true depth had C 0.05-0.2 and L 0.8.
 
 Particles with z below ``z_min`` (behind or at the camera) get c = -1 (L = 0) and C = 1.
 """
@@ -83,6 +89,7 @@ class BundleLikelihood:
         c_depth_margin: float = 0.02,
         depth_no_data: float = 0.5,
         z_min: float = 0.05,
+        c_box: float | None = None,
     ) -> None:
         if c_mode not in C_MODES:
             raise ConfigError(f"c_mode must be one of {C_MODES}, got {c_mode!r}")
@@ -103,6 +110,7 @@ class BundleLikelihood:
         self.c_depth_margin = float(c_depth_margin)
         self.depth_no_data = float(depth_no_data)
         self.z_min = float(z_min)
+        self.c_box = c_box
         self._codebook_t = np.ascontiguousarray(bundle.ae_codebook.T)  # (E,K): fast matmul
         sd = bundle.depth_size
         self.depth_spec = CropSpec(
@@ -198,20 +206,45 @@ class BundleLikelihood:
         elif self.c_mode == "both" and C is not None:
             C = 0.5 * (C + self.depth_no_data)
         if C is not None:
-            C = np.where(behind, 1.0, C)
+            C = np.where(behind, 1.0, self._with_box_scale(C, frame, idx, t))
         return Scores(L=L, w=w, C=C, stage_ms=ms)
+
+    def _with_box_scale(
+        self, C: np.ndarray, frame: Frame, idx: np.ndarray, t: np.ndarray
+    ) -> np.ndarray:
+        """C (N,) combined with the box-scale counter-evidence of entries idx (N,) at t (N,3)
+        (module docstring, item 6); C itself when ``c_box`` is None or there is no box."""
+        box = valid_box(frame.box)
+        if self.c_box is None or box is None:
+            return C
+        ext = self.extent_px[idx]
+        ext = np.where(ext > 0, ext, self.median_extent_px)
+        z = np.maximum(t[:, 2], self.z_min)
+        projected = self.spec.render_distance * ext * float(frame.K[0, 0]) / (self.spec.focal * z)
+        rho = max(box[2], box[3]) / projected
+        c_box = np.clip((rho - 1.0 - self.c_box) / self.c_box, 0.0, 1.0)
+        return 1.0 - (1.0 - C) * (1.0 - c_box)
 
     # ------------------------------------------------------------------ Rao-Blackwellised
     def codebook_scores(self, frame: Frame, t: np.ndarray) -> CodebookScores:
         """Cosine similarities (N,K) of the crops at t (N,3) with the whole AE codebook."""
         ms: dict[str, float] = {}
         t = np.asarray(t, dtype=np.float64)
-        _, emb = self._crops_and_embed(frame, t, ms)
+        crops, emb = self._crops_and_embed(frame, t, ms)
         t0 = time.perf_counter()
         cos = emb @ self._codebook_t
-        cos[t[:, 2] < self.z_min] = -1.0
+        behind = t[:, 2] < self.z_min
+        cos[behind] = -1.0
         ms["lookup"] = ms_since(t0)
-        return CodebookScores(cos=cos, stage_ms=ms)
+
+        def misaligned(idx: np.ndarray) -> np.ndarray:
+            """Learned C (N,) of entries idx (N,) for these crops (1 behind the camera)."""
+            idx = np.asarray(idx)
+            ch_emb = emb if self.bundle.shares_encoder else self.bundle.ch_embed(crops)
+            C = self.bundle.p_misaligned(ch_emb, idx).astype(np.float64)
+            return np.where(behind, 1.0, self._with_box_scale(C, frame, idx, t))
+
+        return CodebookScores(cos=cos, stage_ms=ms, misaligned=misaligned)
 
     def depth_weight(self, frame: Frame, idx: np.ndarray, t: np.ndarray) -> np.ndarray | None:
         """L_depth (N,) of codebook entries idx (N,) at t (N,3), or None without depth."""

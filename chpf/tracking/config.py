@@ -54,8 +54,8 @@ class CandidatesConfig(Section):
     z_range: tuple[float, float] = (0.3, 2.0)  # RGB z range when the box scale is not used
     z_from_box: bool = True  # RGB: z range from the box size and the object's extent
     z_box_factors: tuple[float, float] = (0.8, 1.25)
-    box_uv_fraction: float = setting(1.0, gt=0.0, le=1.0)  # (u, v) in this central fraction
-    rotations: Literal["uniform", "codebook"] = "uniform"  # codebook: entries matching the box
+    box_uv_fraction: float = setting(0.3, gt=0.0, le=1.0)  # (u, v) in this central fraction
+    rotations: Literal["uniform", "codebook"] = "codebook"  # codebook: entries matching the box
     temperature: float = setting(0.05, gt=0.0)  # codebook: p(entry) ~ exp((cos - max) / this)
     uniform_share: float = setting(0.25, ge=0.0, le=1.0)  # codebook: share drawn uniformly
     depth_offset: tuple[float, float] | None = None  # RGB-D: z = measured + U(a, b); None =
@@ -75,7 +75,7 @@ class LikelihoodConfig(Section):
     """Likelihoods: sigma (AE cosine -> importance weight width), l_from_cos (L_FROM_COS),
     depth margins (m) and the scores of a hypothesis without depth data."""
 
-    sigma: float = setting(0.3, gt=0.0)
+    sigma: float = setting(0.1, gt=0.0)
     l_from_cos: LFromCos = "clip"
     depth_margin: float = setting(0.03, ge=0.0)
     c_depth_margin: float = setting(0.02, ge=0.0)

@@ -1,5 +1,5 @@
 """``chpf-track --demo``: a short occluded sequence of the shipped bundle's object, tracked by
-CH-PF and two baselines.
+CH-PF, CH-RBPF and two baselines (SRL, PoseRBPF) with the default config.
 
 The sequence is a shipped asset (``chpf/assets/demo/box``, a BOP root of RGB frames, ground
 truth, simulated detections and the box's model), so the demo needs neither rendering nor the
@@ -19,7 +19,7 @@ from chpf.bop import SEQUENCES_INFO
 from chpf.bundle import Bundle
 from chpf.errors import BundleError
 
-DEMO_METHODS = ("chpf", "srl", "poserbpf")
+DEMO_METHODS = ("chpf", "chrbpf", "srl", "poserbpf")
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 
 

@@ -17,6 +17,7 @@ import numpy as np
 from chpf.config_schema import Section, setting
 from chpf.errors import ConfigError
 from chpf.tracking.candidates import CandidateSampler
+from chpf.tracking.chrbpf import CHRBPF
 from chpf.tracking.motion import RandomWalk
 from chpf.tracking.particle_filter import ParticleFilter
 from chpf.tracking.rbpf import RaoBlackwellisedFilter
@@ -50,8 +51,9 @@ class Filter(Protocol):
     def reset(self) -> None: ...
 
 
-Build = Callable[[object, Any, int, RandomWalk, CandidateSampler, np.random.Generator], Filter]
-"""(likelihood, options, n_particles, motion, candidates, rng) -> the method's filter."""
+Build = Callable[..., Filter]
+"""(likelihood, options, n_particles, motion, candidates, rng, *also) -> the method's filter;
+``also``: the config sections named by ``Method.also``."""
 
 
 @dataclass(frozen=True)
@@ -61,7 +63,8 @@ class Method:
     cls: its Strategy (run by the 6D ParticleFilter) or its own filter class.
     options: its options dataclass (None: it has none), the TrackConfig section ``section``.
     build: how a filter class that is not a Strategy is made (None for strategies).
-    paper: one of the methods compared in the paper (``--method all``).
+    paper: run by ``--method all`` (the methods compared in the paper, and CH-RBPF).
+    also: other config sections that ``build`` reads (passed after rng, in this order).
     """
 
     name: str
@@ -71,6 +74,7 @@ class Method:
     paper: bool = True
     section: str = ""
     build: Build | None = None
+    also: tuple[str, ...] = ()
 
     def make(
         self,
@@ -80,10 +84,12 @@ class Method:
         motion: RandomWalk,
         candidates: CandidateSampler,
         rng: np.random.Generator,
+        *also: Any,
     ) -> Filter:
-        """This method's filter around ``likelihood`` with ``options`` (its config section)."""
+        """This method's filter around ``likelihood`` with ``options`` (its config section)
+        and the sections named by ``also``."""
         if self.build is not None:
-            return self.build(likelihood, options, n_particles, motion, candidates, rng)
+            return self.build(likelihood, options, n_particles, motion, candidates, rng, *also)
         strategy: Strategy = self.cls(options) if self.options else self.cls()
         return ParticleFilter(
             likelihood,  # type: ignore[arg-type]
@@ -168,9 +174,31 @@ def _poserbpf(plus: bool) -> Build:
     return build
 
 
-register(
-    Method("chpf", CHPF, CHPFConfig, "Counter-Hypothetical PF: alpha = sum C / (sum C + sum L)")
-)
+def _chrbpf(
+    likelihood: object,
+    options: PoseRBPFConfig,
+    n_particles: int,
+    motion: RandomWalk,
+    candidates: CandidateSampler,
+    rng: np.random.Generator,
+    ch: CHPFConfig,
+) -> Filter:
+    """Build CH-RBPF: PoseRBPF's filter (``poserbpf`` options) with CH-PF's rule (``chpf``)."""
+    return CHRBPF(
+        likelihood,  # type: ignore[arg-type]
+        CHPF(ch),
+        n_particles=n_particles,
+        motion=motion,
+        candidates=candidates,
+        rng=rng,
+        sigma=options.sigma,
+        rotation_sigma=options.rotation_sigma,
+        n_neighbours=options.neighbours,
+        rotation_estimate=options.rotation_estimate,
+    )
+
+
+register(Method("chpf", CHPF, CHPFConfig, "Counter-Hypothetical PF: alpha = S_C / (S_C + S_L)"))
 register(
     Method(
         "srl",
@@ -223,6 +251,18 @@ register(
         build=_poserbpf(True),
     )
 )
+register(
+    Method(
+        "chrbpf",
+        CHRBPF,
+        PoseRBPFConfig,
+        "CH-RBPF: PoseRBPF's filter, alpha by CH-PF's rule over each particle's most probable"
+        " orientation (no threshold reset)",
+        section="poserbpf",
+        build=_chrbpf,
+        also=("chpf",),
+    )
+)
 register(Method("fixed", FixedRate, FixedConfig, "6D PF with a constant alpha = rate", paper=False))
 register(Method("none", NoReinvigoration, None, "plain SIR 6D PF (alpha = 0)", paper=False))
 
@@ -243,4 +283,5 @@ def make_filter(
         RandomWalk(cfg.motion.sigma_t, cfg.motion.sigma_r),
         candidates,
         rng,
+        *(getattr(cfg, section) for section in spec.also),
     )

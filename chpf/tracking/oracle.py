@@ -99,7 +99,12 @@ class OracleLikelihood:
         cos = np.exp(self._log_s(d_t[:, None], d_r, 1.0))
         if self.occluded:
             cos = np.full_like(cos, self.occluded_L)
-        return CodebookScores(cos=cos, stage_ms={"oracle": 0.0})
+
+        def misaligned(idx: np.ndarray) -> np.ndarray:  # C of entry idx_i at t_i, as in score
+            d_ri = d_r[np.arange(t.shape[0]), np.asarray(idx)]
+            return 1.0 - np.exp(self._log_s(d_t, d_ri, self.c_scale))
+
+        return CodebookScores(cos=cos, stage_ms={"oracle": 0.0}, misaligned=misaligned)
 
     def depth_weight(self, frame: Frame, idx: np.ndarray, t: np.ndarray) -> np.ndarray | None:
         """No depth model in the oracle."""

@@ -38,7 +38,7 @@ from chpf.tracking.motion import RandomWalk
 from chpf.tracking.resampling import Weights
 from chpf.tracking.rotation_diffusion import grid_spacing, neighbour_matrix
 from chpf.tracking.timing import add_ms, ms_since
-from chpf.tracking.types import CodebookLikelihood, Frame
+from chpf.tracking.types import CodebookLikelihood, CodebookScores, Frame
 
 
 class RaoBlackwellisedFilter(FilterLoop):
@@ -150,12 +150,24 @@ class RaoBlackwellisedFilter(FilterLoop):
         post /= np.where(empty, 1.0, row).astype(np.float32)[:, None]
         post[empty] = 1.0 / self.k
         self.P = post
+        weights = Weights.from_weights(wi)
+        stage_ms["weigh"] = ms_since(t0)
+        return self._reinvigoration(cs, cos, weights, stage_ms)
+
+    def _reinvigoration(
+        self,
+        cs: CodebookScores,
+        cos: np.ndarray,
+        weights: Weights,
+        stage_ms: dict[str, float],
+    ) -> Weighed:
+        """The frame's Weighed with its alpha: PoseRBPF's reset (all particles redrawn when the
+        best cosine of the frame is below ``reset_threshold`` or the weights collapsed), else
+        ``reinvigorate``. cos (N,K): this frame's similarities; P already holds the posterior."""
         best = cos.max(axis=1)
         best_sim = float(best.max()) if best.size else -1.0
-        weights = Weights.from_weights(wi)
         reset = weights.collapsed or best_sim < self.reset_threshold
         self.n_resets += int(reset)
-        stage_ms["weigh"] = ms_since(t0)
         alpha = 1.0 if reset else self.reinvigorate
         return Weighed(weights, alpha, float(np.clip(best, 0.0, None).sum()))
 

@@ -101,15 +101,20 @@ every particle weighed by its normalised importance weight w_i: S_X = sum_i w_i 
 @dataclass
 class CHPFConfig(Section):
     """CH-PF: c_mode, where the Counter-Hypothetical likelihood C comes from (C_MODES; depth
-    and both need RGB-D); sums, which particles alpha's sums run over (CHPF_SUMS)."""
+    and both need RGB-D); sums, which particles alpha's sums run over (CHPF_SUMS); l_power,
+    the exponent p of L in those sums (S_L sums L^p; 1 = the paper's L); c_box, the margin of
+    the box-scale counter-evidence added to C (None = none; chpf.tracking.bundle_likelihood)."""
 
     c_mode: CMode = "learned"
-    sums: CHPFSums = "paper"
+    sums: CHPFSums = "weighted"
+    l_power: float = setting(4.0, gt=0.0)
+    c_box: float | None = setting(None, gt=0.0)
 
 
 class CHPF(Strategy):
     """Counter-Hypothetical PF: alpha = S_C / (S_C + S_L), the sums as chosen by
-    ``config.sums`` (CHPF_SUMS; "paper": sum C / (sum C + sum L) over every particle).
+    ``config.sums`` (CHPF_SUMS; "paper": sum C / (sum C + sum L) over every particle), S_L
+    summing L ** ``config.l_power``.
 
     When both sums are 0 (no evidence for nor against any particle) alpha = 1.
     """
@@ -135,7 +140,7 @@ class CHPF(Strategy):
         C = _finite(scores.C).clip(min=0.0)
         k = self._counts(C.shape[0], weights, fresh)
         sum_c = float(k @ C)
-        sum_l = float(k @ _finite(scores.L).clip(min=0.0))
+        sum_l = float(k @ _finite(scores.L).clip(min=0.0) ** self.config.l_power)
         total = sum_c + sum_l
         return 1.0 if total <= 0.0 else sum_c / total
 

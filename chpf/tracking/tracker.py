@@ -115,6 +115,7 @@ class Tracker:
             depth_margin=lik.depth_margin,
             c_depth_margin=lik.c_depth_margin,
             depth_no_data=lik.depth_no_data,
+            c_box=cfg.chpf.c_box,
         )
         diameter = float(bundle.obj_info.diameter)
         cand = cfg.candidates

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -43,11 +44,14 @@ class CodebookScores:
     """Similarities of N translation hypotheses with the whole orientation codebook.
 
     cos: (N, K) cosine similarity of the observed crop at each translation with every codebook
-    entry (allocentric orientations of ``grid``). stage_ms as in Scores.
+    entry (allocentric orientations of ``grid``). stage_ms as in Scores. misaligned: the
+    learned C (N,) of one codebook entry per particle, idx (N,) int -> (N,) (None when the
+    likelihood has no classifier; CH-RBPF calls it).
     """
 
     cos: np.ndarray
     stage_ms: dict[str, float] = field(default_factory=dict)
+    misaligned: Callable[[np.ndarray], np.ndarray] | None = None
 
 
 @runtime_checkable

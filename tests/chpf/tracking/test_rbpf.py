@@ -1,4 +1,5 @@
-"""PoseRBPF / PoseRBPF++ with the OracleLikelihood, and the rotation-prior diffusion matrix."""
+"""PoseRBPF / PoseRBPF++ / CH-RBPF with the OracleLikelihood, and the rotation-prior diffusion
+matrix."""
 
 from __future__ import annotations
 
@@ -13,7 +14,9 @@ from chpf.tracking import (
     RandomWalk,
     RaoBlackwellisedFilter,
 )
+from chpf.tracking.chrbpf import CHRBPF
 from chpf.tracking.rotation_diffusion import grid_spacing, neighbour_matrix
+from chpf.tracking.strategies import CHPF, CHPFConfig
 
 GRID = RotationGrid.uniform(2048)
 
@@ -122,3 +125,50 @@ def test_poserbpf_draws_only_translations_from_phi_cand(sequence):
     sampler = CandidateSampler(z_range=(0.6, 1.0), rotations=CountingRotations())
     t = sampler.translations(20, frame, np.random.default_rng(3))
     np.testing.assert_array_equal(t, sampler.sample(20, frame, np.random.default_rng(3))[1])
+
+
+def make_chrbpf(oracle, seed=0, **ch):
+    return CHRBPF(
+        oracle,
+        CHPF(CHPFConfig(**ch)),
+        n_particles=50,
+        motion=RandomWalk(sigma_t=0.01, sigma_r=0.1),
+        candidates=CandidateSampler(z_range=(0.6, 1.0)),
+        rng=np.random.default_rng(seed),
+    )
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_chrbpf_converges_and_its_alpha_is_chpfs_rule_over_its_particles(sequence, seed):
+    """CH-RBPF tracks an unoccluded pose from the boxes alone; once it tracks, alpha is low
+    and equals CH-PF's weighted rule over the particles' most probable orientations."""
+    oracle = OracleLikelihood(grid=GRID)
+    filt = make_chrbpf(oracle, seed=seed)
+    errs, res = track(filt, oracle, sequence, range(40))
+    final = errs[-10:].mean(axis=0)
+    assert final[0] < 0.02 and final[1] < 12.0, final
+    assert np.mean([r.alpha for r in res[-10:]]) < 0.2
+    assert np.isfinite(res[-1].sum_C) and res[-1].sum_L > 0
+    # the rule on the next frame's own numbers
+    i = 40
+    oracle.set_pose(sequence.R[i], sequence.t[i])
+    filt._predict()
+    frame = Frame(sequence.rgb, None, sequence.K, sequence.box(i))
+    weighed = filt._weigh(frame, {})
+    k = np.argmax(filt.P, axis=1)
+    cos = oracle.codebook_scores(frame, filt.t).cos[np.arange(50), k]
+    C = oracle.codebook_scores(frame, filt.t).misaligned(k)
+    W = weighed.weights.W
+    e_c, e_l = W @ C, W @ np.clip(cos, 0, None) ** 4
+    assert weighed.alpha == pytest.approx(e_c / (e_c + e_l))
+    assert weighed.sum_C == pytest.approx(C.sum())
+
+
+def test_chrbpf_reinvigorates_all_after_a_forced_collapse_and_recovers(sequence):
+    oracle = OracleLikelihood(grid=GRID)
+    filt = make_chrbpf(oracle)
+    track(filt, oracle, sequence, range(30))
+    filt.set_particles(filt.t + np.array([0.08, 0.0, 0.0]))  # 8 cm aside, orientations unknown
+    errs, res = track(filt, oracle, sequence, range(30, 60))
+    assert res[0].alpha > 0.8 and errs[0, 0] > 0.05
+    assert errs[-10:, 0].mean() < 0.02 and errs[-10:, 1].mean() < 12.0

@@ -28,26 +28,52 @@ def scores(L=L_FIXED, C=C_FIXED) -> Scores:
     return Scores(L=L, w=L.copy(), C=None if C is None else np.asarray(C, float))
 
 
-def test_chpf_alpha_is_sum_c_over_sum_c_plus_sum_l():
-    assert CHPF().alpha(scores()) == pytest.approx(3.0 / (3.0 + 1.8))
-    assert CHPF().alpha(scores(L=[1, 1], C=[0, 0])) == 0.0
-    assert CHPF().alpha(scores(L=[0, 0], C=[1, 0])) == 1.0
-    assert CHPF().alpha(scores(L=[0, 0], C=[0, 0])) == 1.0  # no evidence at all
-    # NaN entries count as 0
-    assert CHPF().alpha(scores(L=[0.5, np.nan], C=[0.5, np.nan])) == pytest.approx(0.5)
-
-
 W_FIXED = np.array([0.4, 0.3, 0.1, 0.0, 0.2])  # normalised importance weights
 FRESH = np.array([False, False, True, True, False])  # just drawn from phi_cand
 
 
-def chpf(sums: str) -> CHPF:
-    return CHPF(CHPFConfig(sums=sums))
+def chpf(sums: str, l_power: float = 1.0) -> CHPF:
+    return CHPF(CHPFConfig(sums=sums, l_power=l_power))
+
+
+def test_chpf_paper_alpha_is_sum_c_over_sum_c_plus_sum_l():
+    paper = chpf("paper")
+    assert paper.alpha(scores()) == pytest.approx(3.0 / (3.0 + 1.8))
+    assert paper.alpha(scores(L=[1, 1], C=[0, 0])) == 0.0
+    assert paper.alpha(scores(L=[0, 0], C=[1, 0])) == 1.0
+    assert paper.alpha(scores(L=[0, 0], C=[0, 0])) == 1.0  # no evidence at all
+    # NaN entries count as 0
+    assert paper.alpha(scores(L=[0.5, np.nan], C=[0.5, np.nan])) == pytest.approx(0.5)
 
 
 def test_chpf_paper_sums_ignore_weights_and_freshness():
-    assert CHPF_SUMS == ("paper", "belief", "weighted") and CHPFConfig().sums == "paper"
+    assert CHPF_SUMS == ("paper", "belief", "weighted")
     assert chpf("paper").alpha(scores(), W_FIXED, FRESH) == pytest.approx(3.0 / (3.0 + 1.8))
+
+
+def test_chpf_default_is_weighted_sums_with_l_to_the_fourth():
+    assert (CHPFConfig().sums, CHPFConfig().l_power) == ("weighted", 4.0)
+    e_c = W_FIXED @ C_FIXED
+    e_l4 = W_FIXED @ L_FIXED**4
+    assert CHPF().alpha(scores(), W_FIXED, FRESH) == pytest.approx(e_c / (e_c + e_l4))
+
+
+@pytest.mark.parametrize("sums", CHPF_SUMS)
+def test_chpf_l_power_raises_each_l_in_the_sums(sums):
+    # paper: sum C = 3.0, sum L^2 = 0.81 + 0.25 + 0.01 + 0 + 0.09 = 1.16
+    # belief (particles 0, 1, 4): sum C = 1.1, sum L^2 = 0.81 + 0.25 + 0.09 = 1.15
+    # weighted: E_w[C] = 0.37, E_w[L^2] = 0.4 * 0.81 + 0.3 * 0.25 + 0.1 * 0.01 + 0.2 * 0.09
+    expected = {
+        "paper": 3.0 / (3.0 + 1.16),
+        "belief": 1.1 / (1.1 + 1.15),
+        "weighted": 0.37 / (0.37 + 0.324 + 0.075 + 0.001 + 0.018),
+    }
+    assert chpf(sums, 2.0).alpha(scores(), W_FIXED, FRESH) == pytest.approx(expected[sums])
+    # a wrong pose (L 0.5) loses more to the power than a right one (L 0.8): with equal C the
+    # set of wrong poses gets the higher alpha, more so at a higher power
+    right, wrong = scores(L=[0.8], C=[0.3]), scores(L=[0.5], C=[0.3])
+    gap = [chpf(sums, p).alpha(wrong) - chpf(sums, p).alpha(right) for p in (1.0, 4.0)]
+    assert 0.0 < gap[0] < gap[1]
 
 
 def test_chpf_belief_sums_run_over_the_particles_resampled_from_the_belief():

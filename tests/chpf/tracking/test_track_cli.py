@@ -53,7 +53,7 @@ def test_track_writes_results_logs_table_and_plot_and_resumes(
 ):
     out = tmp_path / "out"
     args = ["--bundle", template_bundle, "--dataset", dataset, "--method", "chpf,poserbpf++"]
-    args += ["--out", out, "--no-progress"]
+    args += ["--out", out, "--no-progress", "--config", CONFIGS / "track_paper.yaml"]
     code, lines = _run(capsys, *args)
     assert code == 0
     assert lines[0].startswith("detections: simulated detector")
@@ -65,7 +65,7 @@ def test_track_writes_results_logs_table_and_plot_and_resumes(
     log = read_log(out / "log_chpf.csv")
     assert len(log) == FRAMES and (out / "plots" / "scene_000001.png").stat().st_size > 1000
     weighed = [r.values for r in log if r.values["weighed"]]
-    assert weighed  # each logged alpha is CH-PF's rule on that row's logged sums (6 digits)
+    assert weighed  # each logged alpha is the paper's rule on that row's logged sums (6 digits)
     for v in weighed:
         np.testing.assert_allclose(v["alpha"], v["sum_C"] / (v["sum_C"] + v["sum_L"]), rtol=1e-4)
     assert np.isfinite([r.values["err_adds"] for r in log if r.values["ok"]]).all()
@@ -222,7 +222,7 @@ def test_set_options_reach_the_trackers_and_bad_ones_exit_2(dataset, capsys):
     args = build_parser().parse_args(
         [
             "--config",
-            str(CONFIGS / "track_informed.yaml"),
+            str(CONFIGS / "track_paper.yaml"),
             "--set",
             "srl.beta=0.5",
             "--set",
@@ -233,7 +233,7 @@ def test_set_options_reach_the_trackers_and_bad_ones_exit_2(dataset, capsys):
     )
     cfg = tracking_config(args)
     assert cfg.srl.beta == 0.5 and cfg.likelihood.sigma == 0.2 and cfg.filter.n_particles == 20
-    assert cfg.candidates.rotations == "codebook"  # the file's keys stay
+    assert cfg.candidates.rotations == "uniform"  # the file's keys stay
     for bad, needle in (("srl.betta=1", "unknown key srl.betta"), ("srl.beta=-1", "srl.beta")):
         code, err = _console_script(
             ["--dataset", str(dataset), "--bundle", "b", "--set", bad], capsys
@@ -242,13 +242,13 @@ def test_set_options_reach_the_trackers_and_bad_ones_exit_2(dataset, capsys):
         assert needle in err[0]
 
 
-def test_demo_runs_chpf_and_two_baselines(template_bundle, tmp_path, capsys):
+def test_demo_runs_chpf_chrbpf_and_two_baselines(template_bundle, tmp_path, capsys):
     out = tmp_path / "demo"
     code, lines = _run(capsys, "--demo", "--bundle", template_bundle, "--out", out, "--no-progress")
     assert code == 0 and lines[0].startswith("detections: simulated detector")
     table = (out / "auc_table.txt").read_text()
-    for m in ("chpf", "srl", "poserbpf"):
-        assert m in table
+    rows = [line.split()[0] for line in table.splitlines()[2:]]
+    assert rows == ["chpf", "chrbpf", "srl", "poserbpf"]
     assert (out / "plots" / "scene_000001.png").is_file()
     assert set(COLUMNS) <= set((out / "log_chpf.csv").read_text().splitlines()[0].split(","))
 

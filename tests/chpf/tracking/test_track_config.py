@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[3]
 CONFIGS = ROOT / "configs"
 
 
-@pytest.mark.parametrize("name", ["track_default.yaml", "track_rgbd.yaml", "track_informed.yaml"])
+@pytest.mark.parametrize("name", ["track_default.yaml", "track_rgbd.yaml", "track_paper.yaml"])
 def test_shipped_configs_load(name):
     cfg = make_config(CONFIGS / name)
     assert isinstance(cfg, TrackConfig) and cfg.filter.n_particles == 50
@@ -44,7 +44,7 @@ def test_overrides_and_refusals(tmp_path):
     assert cfg.filter.n_particles == 20 and cfg.srl.beta == 0.5
     assert cfg.candidates.z_range == (0.3, 2.0)
     assert make_config(CONFIGS / "track_default.yaml", ["srl.beta=0.5"]).srl.beta == 0.5
-    assert make_config(None, ["chpf.sums=weighted"]).chpf.sums == "weighted"
+    assert make_config(None, ["chpf.sums=paper"]).chpf.sums == "paper"
     bad = tmp_path / "bad.yaml"
     bad.write_text("motion:\n  sigma_t: 0.01\nbogus: 3\n")
     with pytest.raises(ConfigError, match="bogus"):
@@ -113,7 +113,9 @@ def test_every_registered_method_with_options_has_its_section():
         "e2e",
         "poserbpf",
         "poserbpf++",
+        "chrbpf",
     )
+    assert METHODS["chrbpf"].also == ("chpf",)  # its alpha is CH-PF's rule, with its options
 
 
 def test_readme_table_of_methods_matches_the_registry():
