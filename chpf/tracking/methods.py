@@ -145,6 +145,17 @@ class PoseRBPFConfig(Section):
     rotation_estimate: Literal["argmax", "mean"] = "argmax"
 
 
+def _rotation_filter_options(options: PoseRBPFConfig) -> dict[str, Any]:
+    """RaoBlackwellisedFilter's keywords for its rotation filter, shared by PoseRBPF(++) and
+    CH-RBPF."""
+    return {
+        "sigma": options.sigma,
+        "rotation_sigma": options.rotation_sigma,
+        "n_neighbours": options.neighbours,
+        "rotation_estimate": options.rotation_estimate,
+    }
+
+
 def _poserbpf(plus: bool) -> Build:
     """Build PoseRBPF (plus: PoseRBPF++, reinvigorating plus_fraction every frame)."""
 
@@ -162,13 +173,10 @@ def _poserbpf(plus: bool) -> Build:
             motion=motion,
             candidates=candidates,
             rng=rng,
-            sigma=options.sigma,
-            rotation_sigma=options.rotation_sigma,
-            n_neighbours=options.neighbours,
             reset_threshold=options.reset_threshold,
             reinvigorate=options.plus_fraction if plus else 0.0,
-            rotation_estimate=options.rotation_estimate,
             name="poserbpf++" if plus else "poserbpf",
+            **_rotation_filter_options(options),
         )
 
     return build
@@ -191,10 +199,7 @@ def _chrbpf(
         motion=motion,
         candidates=candidates,
         rng=rng,
-        sigma=options.sigma,
-        rotation_sigma=options.rotation_sigma,
-        n_neighbours=options.neighbours,
-        rotation_estimate=options.rotation_estimate,
+        **_rotation_filter_options(options),
     )
 
 
