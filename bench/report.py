@@ -463,7 +463,9 @@ def _markdown(suite, fig, auc, track, n_done, n_seqs, pngs, out) -> str:
                 for w in s.get("warnings", []):
                     warned[(s["method"], s["modality"], w.split(":")[0])] += 1
     if warned:
-        counts = "; ".join(f"{m} {mod}: {k} in {v} jobs" for (m, mod, k), v in warned.items())
+        counts = "; ".join(
+            f"{m} {mod}: {k} in {v} job{'s' if v > 1 else ''}" for (m, mod, k), v in warned.items()
+        )
         lines += [f"Warnings of the runs (recorded in each job's summary.json): {counts}.", ""]
     lines += ["## All sequences", "", headline_table(fig, auc, track), ""]
     lines += ["## Per occlusion level", "", level_table(fig, auc), ""]
