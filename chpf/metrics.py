@@ -1,4 +1,5 @@
-"""Pose error metrics of the YCB-Video convention: ADD, ADD-S (metres) and the VOCap AUC.
+"""Pose error metrics of the YCB-Video and BOP conventions: ADD, ADD-S (metres), the VOCap
+AUC and the accuracy at a threshold (BOP's "ADD(-S) < 0.1 d").
 
 Poses map object to camera: x_cam = R @ x_obj + t; points are model points (M, 3) in metres.
 """
@@ -10,7 +11,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["add", "add_batch", "adds", "adds_batch", "auc"]
+__all__ = ["accuracy", "add", "add_batch", "adds", "adds_batch", "auc"]
 
 # Number of (pose, point) pairs transformed at once by the batched metrics (bounds memory).
 _CHUNK_PAIRS = 1 << 19
@@ -157,3 +158,18 @@ def auc(errors: np.ndarray, max_threshold: float = 0.1) -> float:
     idx = np.flatnonzero(mrec[1:] != mrec[:-1]) + 1
     area = np.sum((mrec[idx] - mrec[idx - 1]) * mpre[idx])
     return float(area / max_threshold * 100.0)
+
+
+def accuracy(errors: np.ndarray, thresholds: np.ndarray | float) -> float:
+    """Share in percent (0..100) of the errors below their threshold (error < threshold).
+
+    errors (n,) metres, nan or inf for a missing estimate (a failure); thresholds: one value
+    or (n,) per error (e.g. 0.1 x each object's diameter). Empty input gives 0.0.
+    """
+    d = np.asarray(errors, dtype=np.float64).reshape(-1)
+    if d.size == 0:
+        return 0.0
+    thr = np.broadcast_to(np.asarray(thresholds, dtype=np.float64), d.shape)
+    with np.errstate(invalid="ignore"):
+        ok = d < thr
+    return float(100.0 * np.count_nonzero(ok) / d.size)

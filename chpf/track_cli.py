@@ -28,6 +28,7 @@ from chpf.bop import BopDataset, read_results_csv
 from chpf.bundle import Bundle
 from chpf.console import run_main, scene_list
 from chpf.errors import BundleError, ConfigError, DatasetError
+from chpf.model_points import model_points
 from chpf.outdir import check_out_dir, claim_settings, lock_output_dir
 from chpf.tracking.boxes import make_box_source
 from chpf.tracking.config import MODALITIES, make_config
@@ -189,7 +190,7 @@ def track(
         has_gt = any(ds.scene(args.split, s).gt for s in scenes)
         if has_gt:
             try:
-                points = ds.load_object(obj_id).points
+                points = model_points(ds, obj_id)
             except Exception as err:  # no mesh: track anyway, without per-frame errors
                 print(f"note: no per-frame errors ({err})")
         print(

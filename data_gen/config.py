@@ -172,6 +172,7 @@ class Sequences(Section):
     light_intensity: float = setting(3.0, ge=0.0, le=100.0)
     ambient: float = setting(0.35, ge=0.0, le=1.0)
     rgb_ext: Literal["png", "jpg"] = "png"
+    family: Literal["training", "heldout"] = "training"
 
 
 @dataclass

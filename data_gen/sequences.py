@@ -16,6 +16,11 @@ and obj_XXXXXX.ply in millimetres. ``DIR/detections_sim.json`` holds the boxes o
 ``SimulatedDetector``; ``DIR/sequences_info.json`` records the settings and, per scene, the
 target's visible-fraction statistics.
 
+``sequences.family``: ``training`` (the walls, occluder and light described above, drawn as the
+training data draws them) or ``heldout`` (walls, occluder shapes and lighting that the training
+generator never draws, one occluder shape per scene: ``data_gen.heldout``), for benchmarks
+that measure generalisation.
+
 Scenes are independent (own random streams from (seed, scene id)), written one by one; a
 rerun skips complete scenes (resume), and a folder made with other settings is refused unless
 ``overwrite``.
@@ -37,7 +42,7 @@ from chpf.atomic import atomic_write_bytes, atomic_write_text
 from chpf.detections import SimulatedDetector
 from chpf.errors import ConfigError, DatasetError
 from chpf.geometry import axis_angle_to_matrix, random_rotations
-from data_gen import augment
+from data_gen import augment, heldout
 
 FPS = 30.0
 FORMAT_VERSION = 1
@@ -84,16 +89,34 @@ def resolve_objects(
     if cfg["sequences"]["occlusion"] != "none" and cfg["sequences"]["occluder_passes"] > 0:
         from chpf.objects import builtin_object
 
-        name = "box" if scene[0].obj.name != "box" or scene[0].obj_id != 2 else "drill"
-        occ = builtin_object(name)
+        if cfg["sequences"]["family"] == "heldout":  # one per scene: see scene_objects
+            occ = heldout.occluder_objects()[0]
+        else:
+            name = "box" if scene[0].obj.name != "box" or scene[0].obj_id != 2 else "drill"
+            occ = builtin_object(name)
         scene.append(SceneObject(occ, occ.obj_id, "occluder"))
     return scene
+
+
+def scene_objects(
+    scene_objs: list[SceneObject], cfg: dict, rng: np.random.Generator
+) -> list[SceneObject]:
+    """The objects of one scene: those of the root, with a held-out occluder drawn by ``rng``
+    (family heldout)."""
+    if cfg["sequences"]["family"] != "heldout" or scene_objs[-1].role != "occluder":
+        return scene_objs
+    occ = heldout.occluder_for_scene(rng)
+    return [*scene_objs[:-1], SceneObject(occ, occ.obj_id, "occluder")]
 
 
 def write_models(root: Path, scene_objs: list[SceneObject]) -> None:
     """models/models_info.json (with symmetries) and models/obj_XXXXXX.ply (mm)."""
     infos = {}
     done = set()
+    if scene_objs[-1].obj.name.startswith("heldout_"):  # any of them may occlude a scene
+        scene_objs = scene_objs[:-1] + [
+            SceneObject(o, o.obj_id, "occluder") for o in heldout.occluder_objects()
+        ]
     for s in scene_objs:
         if s.obj_id in done:
             continue
@@ -390,13 +413,20 @@ def render_scene(
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 3, int(scene_id)]))
     det_rng = np.random.default_rng(np.random.SeedSequence([int(seed), 4, int(scene_id)]))
     noise_rng = np.random.default_rng(np.random.SeedSequence([int(seed), 5, int(scene_id)]))
+    family_rng = np.random.default_rng(np.random.SeedSequence([int(seed), 6, int(scene_id)]))
+    scene_objs = scene_objects(scene_objs, cfg, family_rng)
     detector = SimulatedDetector(cfg["detector"], det_rng)
     W, H, f = sc["width"], sc["height"], sc["focal"]
     K = np.array([[f, 0.0, (W - 1) / 2.0], [0.0, f, (H - 1) / 2.0], [0.0, 0.0, 1.0]])
     traj = scene_trajectories(scene_objs, cfg, rng)
     if traj["occluder"] is not None:
         calibrate_occluder(traj, scene_objs, K, renderer)
-    tex = augment.procedural_textures(1, 1024, rng)[0]
+    light = None
+    if sc["family"] == "heldout":
+        tex = heldout.wall_texture(family_rng, 1024)
+        light = heldout.lighting(family_rng)
+    else:
+        tex = augment.procedural_textures(1, 1024, rng)[0]
     wall = Wall(tex, traj["wall_z"], K, W, H, traj["wall_gain"])
     sdir = bop.scene_dir(root, split, scene_id)
     ext = "." + sc["rgb_ext"]
@@ -412,13 +442,15 @@ def render_scene(
         out = renderer.render(
             [(s.obj, p.R, p.t) for s, p in zip(scene_objs, poses, strict=True)],
             K,
-            light_intensity=traj["light_intensity"],
-            ambient=sc["ambient"],
-            light_direction=traj["light_dir"],
+            light_intensity=traj["light_intensity"] if light is None else light.intensity,
+            ambient=sc["ambient"] if light is None else light.ambient,
+            light_direction=traj["light_dir"] if light is None else light.direction,
         )
         wall_rgb, wall_depth = wall.render(R_w2c, t_w2c)
         inv = (255 - out.alpha).astype(np.uint16)[..., None]
         rgb = np.minimum(out.rgb + (wall_rgb * inv + 127) // 255, 255).astype(np.uint8)
+        if light is not None:
+            rgb = light.apply_tint(rgb)
         depth = np.where(out.depth > 0, out.depth, wall_depth).astype(np.float32)
         if sc["depth_noise"]:
             depth = augment.depth_noise(depth, noise_rng, cfg["depth"])

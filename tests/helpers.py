@@ -94,3 +94,28 @@ def write_bundle(
     }
     (root / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return root
+
+
+def vocap_reference(errors, max_threshold: float = 0.1) -> float:
+    """VOCap AUC (percent): a line-by-line transcription of the YCB-Video toolbox's MATLAB
+    (1-based indices kept as comments), independent of chpf.metrics."""
+    D = [float(e) for e in errors]
+    n = len(D)
+    if n == 0:
+        return 0.0
+    D = [np.inf if e > max_threshold else e for e in D]  # D(D > max_distance) = inf
+    d = sorted(D, key=lambda e: (np.isnan(e), e))  # sort: NaN last
+    accuracy = [(i + 1) / n for i in range(n)]  # cumsum(ones(1, n)) / n
+    rec = [d[i] for i in range(n) if np.isfinite(d[i])]
+    prec = [accuracy[i] for i in range(n) if np.isfinite(d[i])]
+    if not rec:
+        return 0.0  # prec(end) fails in MATLAB: no success at all
+    mrec = [0.0, *rec, max_threshold]
+    mpre = [0.0, *prec, prec[-1]]
+    for i in range(1, len(mpre)):
+        mpre[i] = max(mpre[i], mpre[i - 1])
+    ap = 0.0
+    for i in range(1, len(mrec)):
+        if mrec[i] != mrec[i - 1]:
+            ap += (mrec[i] - mrec[i - 1]) * mpre[i]
+    return ap / max_threshold * 100.0

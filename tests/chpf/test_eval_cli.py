@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -13,9 +14,12 @@ import trimesh
 
 from chpf import bop
 from chpf.bop import BopDataset, CameraInfo, GtPose, ModelInfo, ResultRow
+from chpf.errors import DatasetError
 from chpf.eval_cli import cli, evaluate, format_table
-from chpf.metrics import adds_batch, auc
+from chpf.eval_targets import read_targets
+from chpf.metrics import auc
 from chpf.results import HEADER
+from tests.helpers import vocap_reference
 
 K = np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
 OFFSET = np.array([0.05, 0.0, 0.0])
@@ -59,6 +63,23 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
+def _box_corners(scale: float = 1.0) -> np.ndarray:
+    """The 8 corners (m) of the 100 x 70 x 40 mm box of object 1."""
+    half = scale * np.array([0.05, 0.035, 0.02])
+    return np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
+
+
+def _add_hand(pts: np.ndarray, Re, te, Rg, tg) -> float:
+    """ADD by its definition (a plain loop over points)."""
+    return float(np.mean([np.linalg.norm((Re @ p + te) - (Rg @ p + tg)) for p in pts]))
+
+
+def _adds_hand(pts: np.ndarray, Re, te, Rg, tg) -> float:
+    """ADD-S by its definition (brute-force nearest estimate-posed point)."""
+    est = pts @ Re.T + te
+    return float(np.mean([np.min(np.linalg.norm(est - (Rg @ p + tg), axis=1)) for p in pts]))
+
+
 def _gt_rows(root: Path, obj_id: int = 1, offset: np.ndarray | None = None) -> list[ResultRow]:
     ds = BopDataset(root)
     rows = []
@@ -89,12 +110,11 @@ def test_offset_gives_computed_auc(dataset: Path) -> None:
     # a pure 5 cm translation error: ADD is 0.05 m for every instance
     assert e["add_auc"] == pytest.approx(auc(np.full(16, 0.05)))
     assert 45.0 < e["add_auc"] < 56.0
-    points = BopDataset(dataset).load_object(1).points
+    # default model points: the box's 8 corner vertices (mm -> m), ADD-S by brute force
+    corners = _box_corners()
     gt = _gt_rows(dataset)
-    R = np.stack([r.R for r in gt])
-    t = np.stack([r.t for r in gt])
-    expected_adds = adds_batch(points, R, t + OFFSET, R, t)
-    assert e["adds_auc"] == pytest.approx(auc(expected_adds), abs=1e-9)
+    expected_adds = [_adds_hand(corners, r.R, r.t + OFFSET, r.R, r.t) for r in gt]
+    assert e["adds_auc"] == pytest.approx(vocap_reference(expected_adds), abs=1e-9)
     assert e["adds_auc"] > e["add_auc"]
 
 
@@ -131,12 +151,13 @@ def test_two_instances_matched_greedily(dataset: Path) -> None:
 
 def test_format_table(dataset: Path) -> None:
     rep = evaluate(dataset, _gt_rows(dataset), "test")
-    rep["objects"]["7"] = {"n": 0, "n_missing": 0, "add_auc": None, "adds_auc": None}
+    none = {f"{m}_{k}": None for m in ("add", "adds", "add_s") for k in ("auc", "acc")}
+    rep["objects"]["7"] = {"n": 0, "n_missing": 0, **none}
     lines = format_table(rep).splitlines()
-    assert "ADD AUC" in lines[0] and "ADD-S AUC" in lines[0]
-    assert lines[1].split() == ["1", "16", "0", "100.00", "100.00"]
-    assert lines[2].split() == ["7", "0", "0", "-", "-"]
-    assert lines[-1].split()[0] == "all"
+    assert "ADD AUC" in lines[0] and "ADD-S AUC" in lines[0] and "ADD(-S) AUC" in lines[0]
+    assert lines[1].split() == ["1", "16", "0", "100.00", "100.00", "100.00", "100.00"]
+    assert lines[2].split() == ["7", "0", "0", "-", "-", "-", "-"]
+    assert lines[-2].startswith("all (pooled)") and lines[-1].startswith("mean of objects")
 
 
 def _run_cli(monkeypatch: pytest.MonkeyPatch, *args: str) -> int:
@@ -172,6 +193,109 @@ def test_cli_malformed_csv_exits_2(dataset: Path, tmp_path: Path, monkeypatch, c
     bop.write_results_csv(good, _gt_rows(dataset))
     code = _run_cli(monkeypatch, "--dataset", str(tmp_path / "nope"), "--results", str(good))
     assert code == 2 and "nope" in capsys.readouterr().err
+
+
+# --- model points, ADD(-S), accuracy, pooling, targets ------------------------------------------
+
+
+def _rot_z(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rotated_rows(root: Path, obj_id: int, deg: float) -> list[ResultRow]:
+    """Ground truth of obj_id with the estimate turned by deg about the object's z axis."""
+    return [
+        ResultRow(r.scene_id, r.im_id, r.obj_id, 1.0, r.R @ _rot_z(deg), r.t, 0.02)
+        for r in _gt_rows(root, obj_id)
+    ]
+
+
+def test_model_points_sources(dataset: Path, tmp_path: Path) -> None:
+    rows = _rotated_rows(dataset, 1, 30.0)
+    gt = _gt_rows(dataset)
+    rep = evaluate(dataset, rows, "test")["objects"]["1"]
+    hand = [_add_hand(_box_corners(), e.R, e.t, g.R, g.t) for e, g in zip(rows, gt, strict=True)]
+    assert rep["add_auc"] == pytest.approx(vocap_reference(hand), abs=1e-9)
+    # a point file (metres), as YCB-Video's points.xyz
+    pts = np.array([[0.02, 0.0, 0.0], [0.0, 0.03, 0.01], [-0.01, -0.01, 0.0]])
+    xyz = tmp_path / "points.xyz"
+    np.savetxt(xyz, pts)
+    rep = evaluate(dataset, rows, "test", points=xyz)["objects"]["1"]
+    hand = [_add_hand(pts, e.R, e.t, g.R, g.t) for e, g in zip(rows, gt, strict=True)]
+    assert rep["add_auc"] == pytest.approx(vocap_reference(hand), abs=1e-9)
+    # the surface sample only on request: it differs from the 8 corners
+    sample = BopDataset(dataset).load_object(1).points
+    rep_s = evaluate(dataset, rows, "test", points="sample")["objects"]["1"]
+    hand = [_add_hand(sample, e.R, e.t, g.R, g.t) for e, g in zip(rows, gt, strict=True)]
+    assert rep_s["add_auc"] == pytest.approx(vocap_reference(hand), abs=1e-9)
+    # models_eval/ wins over models/ when present (here a box twice as large)
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    (copy / "models_eval").mkdir()
+    trimesh.creation.box(extents=[200.0, 140.0, 80.0]).export(copy / "models_eval/obj_000001.ply")
+    rep = evaluate(copy, rows, "test")["objects"]["1"]
+    hand = [_add_hand(_box_corners(2.0), e.R, e.t, g.R, g.t) for e, g in zip(rows, gt, strict=True)]
+    assert rep["add_auc"] == pytest.approx(vocap_reference(hand), abs=1e-9)
+    # one point file cannot serve two objects; a bad point file is one line
+    two = rows + _gt_rows(dataset, 2)
+    with pytest.raises(DatasetError, match="one point file for 2 objects"):
+        evaluate(dataset, two, "test", points=xyz)
+    bad = tmp_path / "bad.xyz"
+    bad.write_text("1 2\n3 4\n")
+    with pytest.raises(DatasetError, match=r"bad\.xyz: not a point file"):
+        evaluate(dataset, rows, "test", points=bad)
+
+
+def test_add_s_follows_symmetry_accuracy_and_pooling(dataset: Path) -> None:
+    # cylinder (symmetric about z, 24 sections): 15 degrees about z maps its vertices onto
+    # themselves, so ADD-S = 0 while ADD > 0; ADD(-S) is ADD-S for it
+    cyl = _rotated_rows(dataset, 2, 15.0)
+    box = _gt_rows(dataset, 1, offset=np.array([0.0, 0.0, 0.0]))
+    # the box: every other instance's estimate 1 cm off, the rest 3 cm (diameter 12.8 cm)
+    for i, r in enumerate(box):
+        r.t = r.t + np.array([0.01 if i % 2 else 0.03, 0.0, 0.0])
+    rep = evaluate(dataset, box + cyl[:5], "test")
+    c, b = rep["objects"]["2"], rep["objects"]["1"]
+    assert c["symmetric"] and not b["symmetric"]
+    assert c["adds_auc"] == pytest.approx(100 * 5 / 10, abs=1e-4)  # 5 of 10, exact (float32)
+    assert c["add_s_auc"] == c["adds_auc"] and c["add_auc"] < c["adds_auc"]
+    assert b["add_s_auc"] == b["add_auc"]
+    d_box = float(np.linalg.norm([0.1, 0.07, 0.04]))
+    box_add = [0.01 if i % 2 else 0.03 for i in range(16)]
+    assert b["add_s_acc"] == pytest.approx(100 * np.mean(np.array(box_add) < 0.1 * d_box))
+    assert 0 < b["add_s_acc"] < 100
+    # pooled over all 26 instances vs the mean of the two objects' AUCs
+    cyl_adds = [0.0] * 5 + [np.inf] * 5
+    pooled = vocap_reference(box_add + cyl_adds)
+    assert rep["all"]["add_s_auc"] == pytest.approx(pooled, abs=1e-4)
+    per_object = (vocap_reference(box_add) + vocap_reference(cyl_adds)) / 2
+    assert rep["mean_of_objects"]["add_s_auc"] == pytest.approx(per_object, abs=1e-4)
+    assert abs(pooled - per_object) > 1.0  # the two conventions differ here
+
+
+def test_targets_subset(dataset: Path, tmp_path: Path, monkeypatch, capsys) -> None:
+    rows = _gt_rows(dataset, 1, offset=OFFSET)[:4]  # scene 1, images 1-4, 5 cm off
+    bop_json = tmp_path / "test_targets_bop19.json"
+    bop_json.write_text(
+        json.dumps([{"scene_id": 1, "im_id": i, "obj_id": 1, "inst_count": 1} for i in (1, 2)])
+    )
+    rep = evaluate(dataset, rows, "test", targets=read_targets(bop_json))
+    assert rep["all"]["n"] == 2 and rep["all"]["n_missing"] == 0
+    keyframes = tmp_path / "keyframe.txt"
+    keyframes.write_text("# scene/image\n0001/000001\n0001/000003\n0002/000001\n")
+    rep = evaluate(dataset, rows, "test", targets=read_targets(keyframes))
+    assert rep["all"]["n"] == 3 and rep["all"]["n_missing"] == 1  # scene 2 image 1 not estimated
+    assert rep["all"]["add_auc"] == pytest.approx(vocap_reference([0.05, 0.05, np.inf]))
+    res = tmp_path / "res.csv"
+    bop.write_results_csv(res, rows)
+    bad = tmp_path / "bad.txt"
+    bad.write_text("0001/000001\n12 7\n")
+    code = _run_cli(
+        monkeypatch, "--dataset", str(dataset), "--results", str(res), "--targets", str(bad)
+    )
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == "error: " + f"{bad}: line 2: expected scene_id/im_id, got '12 7'"
 
 
 def _cli_lines(monkeypatch, capsys, dataset: Path, res: Path) -> tuple[int, list[str], list[str]]:

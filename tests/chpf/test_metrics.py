@@ -7,6 +7,7 @@ import pytest
 
 from chpf import geometry as geo
 from chpf import metrics
+from tests.helpers import vocap_reference
 
 I3 = np.eye(3)
 Z3 = np.zeros(3)
@@ -122,30 +123,6 @@ def test_empty_batch_and_bad_shapes():
 # --- VOCap AUC -----------------------------------------------------------------------------------
 
 
-def _vocap_reference(errors, max_threshold=0.1) -> float:
-    """Line-by-line transcription of the toolbox's MATLAB (1-based indices kept as comments)."""
-    D = [float(e) for e in errors]
-    n = len(D)
-    if n == 0:
-        return 0.0
-    D = [np.inf if e > max_threshold else e for e in D]  # D(D > max_distance) = inf
-    d = sorted(D, key=lambda e: (np.isnan(e), e))  # sort: NaN last
-    accuracy = [(i + 1) / n for i in range(n)]  # cumsum(ones(1, n)) / n
-    rec = [d[i] for i in range(n) if np.isfinite(d[i])]
-    prec = [accuracy[i] for i in range(n) if np.isfinite(d[i])]
-    if not rec:
-        return 0.0  # prec(end) fails in MATLAB: no success at all
-    mrec = [0.0, *rec, max_threshold]
-    mpre = [0.0, *prec, prec[-1]]
-    for i in range(1, len(mpre)):
-        mpre[i] = max(mpre[i], mpre[i - 1])
-    ap = 0.0
-    for i in range(1, len(mrec)):
-        if mrec[i] != mrec[i - 1]:
-            ap += (mrec[i] - mrec[i - 1]) * mpre[i]
-    return ap / max_threshold * 100.0
-
-
 def test_auc_hand_computed_values():
     # mrec = [0, 0.02, 0.06, 0.1], mpre = [0, 1/2, 1, 1]: 0.02/2 + 0.04 + 0.04 = 0.09 -> 90.
     assert metrics.auc(np.array([0.06, 0.02])) == pytest.approx(90.0, abs=1e-12)
@@ -190,8 +167,8 @@ def test_auc_matches_toolbox_transcription_on_random_inputs():
         e = np.round(rng.uniform(0.0, 0.15, n), 3 if trial % 2 else 9)  # rounding makes ties
         e[rng.random(n) < 0.1] = np.nan
         e[rng.random(n) < 0.05] = np.inf
-        assert metrics.auc(e) == pytest.approx(_vocap_reference(e), abs=1e-9)
-        assert metrics.auc(e, 0.05) == pytest.approx(_vocap_reference(e, 0.05), abs=1e-9)
+        assert metrics.auc(e) == pytest.approx(vocap_reference(e), abs=1e-9)
+        assert metrics.auc(e, 0.05) == pytest.approx(vocap_reference(e, 0.05), abs=1e-9)
 
 
 def test_auc_large_sample_is_close_to_the_curve_area():
@@ -202,3 +179,11 @@ def test_auc_large_sample_is_close_to_the_curve_area():
     exact = np.mean(np.clip(0.1 - e, 0.0, None)) / 0.1 * 100.0  # integral of accuracy(th)
     assert exact <= value <= exact + 100.0 / len(e) + 1e-9
     assert value == pytest.approx(25.0, abs=0.5)
+
+
+def test_accuracy_counts_errors_below_their_threshold():
+    # 0.01 < 0.05 yes; nan (missing) no; 0.2 < 0.5 yes; 0.05 < 0.05 no (strict, as BOP)
+    e = [0.01, np.nan, 0.2, 0.05]
+    assert metrics.accuracy(e, [0.05, 0.05, 0.5, 0.05]) == pytest.approx(50.0)
+    assert metrics.accuracy(e, 0.04) == pytest.approx(25.0)  # only 0.01
+    assert metrics.accuracy([], 0.1) == 0.0

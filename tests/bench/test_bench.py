@@ -1,0 +1,268 @@
+"""chpf-bench: the quick suite end to end, resume, shards and merge, bad input, statistics."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from bench import cli
+from bench.stats import bootstrap, reacquisition, tracked_stat
+from chpf.bop import BopDataset, read_results_csv
+from tests.helpers import vocap_reference
+
+
+def _main(*args: str) -> int:
+    return cli.main(list(args))
+
+
+def _exit(monkeypatch: pytest.MonkeyPatch, *args: str) -> int:
+    monkeypatch.setattr(sys, "argv", ["chpf-bench", *args])
+    with pytest.raises(SystemExit) as ei:
+        cli.cli()
+    return ei.value.code
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("bench-cache")
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory, cache) -> Path:
+    out = tmp_path_factory.mktemp("bench") / "quick"
+    assert (
+        _main(
+            "run", "--suite", "quick", "--out", str(out), "--cache-dir", str(cache), "--no-progress"
+        )
+        == 0
+    )
+    return out
+
+
+def _auc_rows(out: Path) -> list[dict[str, str]]:
+    with open(out / "report" / "auc.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _adds_hand(pts: np.ndarray, Re, te, Rg, tg) -> float:
+    """ADD-S by its definition: brute-force nearest estimate-posed point (metres)."""
+    est = pts @ Re.T + te
+    gt = pts @ Rg.T + tg
+    d = np.sqrt(((gt[:, None, :] - est[None, :, :]) ** 2).sum(-1))
+    return float(d.min(axis=1).mean())
+
+
+def test_quick_suite_report_is_scored_as_computed_by_hand(quick: Path) -> None:
+    rep = quick / "report"
+    for name in (
+        "report.md",
+        "auc.csv",
+        "tracking.csv",
+        "report.json",
+        "auc_by_level.png",
+        "curves.png",
+        "overlays.png",
+    ):
+        assert (rep / name).is_file(), name
+    assert list(rep.glob("sequence_*.png"))
+    md = (rep / "report.md").read_text()
+    assert "| chpf | rgb |" in md and "| srl | rgbd |" in md
+    suite = json.loads((quick / "suite.json").read_text())
+    jobs = sorted((quick / "jobs").iterdir())
+    levels = len(suite["sequences"]["occlusion"])
+    assert len(jobs) == 2 * 2 * levels  # 2 methods x 2 modalities x 1 scene per level
+    # independent scoring of chpf's ADD-S AUC on the heavy sequence: its result CSV, the
+    # model's vertices read with trimesh, brute-force ADD-S, the toolbox's VOCap transcription
+    seqs = json.loads((quick / "sequences.json").read_text())
+    heavy = next(s for s in seqs if s["level"] == "heavy")
+    ds = BopDataset(heavy["root"])
+    scene = ds.scene("test", heavy["scene_id"])
+    pts = np.asarray(trimesh.load(ds.model_path(2), process=False).vertices) / 1000.0
+    job = next(j for j in jobs if j.name.startswith("box-heavy-01-chpf-rgb"))
+    est = {r.im_id: r for p in job.glob("chpf_*.csv") for r in read_results_csv(p)}
+    errors, visib = [], []
+    for im in scene.image_ids():
+        gt = next(p for p in scene.gt[im] if p.obj_id == 2)
+        r = est.get(im)
+        errors.append(np.inf if r is None else _adds_hand(pts, r.R, r.t, gt.R, gt.t))
+        visib.append(scene.gt_info[im][0].visib_fract)
+    row = next(
+        r
+        for r in _auc_rows(quick)
+        if (r["method"], r["occlusion"], r["frames"], r["metric"])
+        == ("chpf", "heavy", "all", "ADD-S")
+    )
+    assert float(row["auc"]) == pytest.approx(vocap_reference(errors), abs=2e-3)
+    occluded = [e for e, v in zip(errors, visib, strict=True) if v < 0.75]
+    assert occluded  # the heavy level hides the target
+    row = next(
+        r
+        for r in _auc_rows(quick)
+        if (r["method"], r["occlusion"], r["frames"], r["metric"])
+        == ("chpf", "heavy", "occluded", "ADD-S")
+    )
+    assert float(row["auc"]) == pytest.approx(vocap_reference(occluded), abs=2e-3)
+
+
+def test_rerun_resumes(quick: Path, cache: Path, capsys) -> None:
+    jobs = sorted((quick / "jobs").iterdir())
+    (jobs[0] / "summary.json").unlink()
+    kept = (jobs[1] / "summary.json").stat().st_mtime_ns
+    before = _auc_rows(quick)
+    capsys.readouterr()
+    assert (
+        _main(
+            "run",
+            "--suite",
+            "quick",
+            "--out",
+            str(quick),
+            "--cache-dir",
+            str(cache),
+            "--no-progress",
+        )
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert f"1 jobs run ({len(jobs) - 1} already done)" in out
+    assert "building" not in out  # the sequences came from the cache
+    assert (jobs[0] / "summary.json").is_file()
+    assert (jobs[1] / "summary.json").stat().st_mtime_ns == kept
+    assert _auc_rows(quick) == before  # the redone job repeats its poses
+
+
+def test_shards_merge_to_the_same_report(quick: Path, cache: Path, tmp_path: Path) -> None:
+    a, b, merged = tmp_path / "a", tmp_path / "b", tmp_path / "merged"
+    for i, d in enumerate((a, b)):
+        assert (
+            _main(
+                "run",
+                "--suite",
+                "quick",
+                "--out",
+                str(d),
+                "--cache-dir",
+                str(cache),
+                "--shard",
+                str(i),
+                "--num-shards",
+                "2",
+                "--no-progress",
+            )
+            == 0
+        )
+        assert not (d / "report").exists()  # one shard of several: no report
+    n_a, n_b = (len(list((d / "jobs").iterdir())) for d in (a, b))
+    assert n_a + n_b == len(list((quick / "jobs").iterdir())) and n_a and n_b
+    assert _main("merge", "--out", str(merged), str(a), str(b)) == 0
+    assert _auc_rows(merged) == _auc_rows(quick)
+
+
+def test_bad_input_is_one_line(
+    quick: Path, cache: Path, tmp_path: Path, monkeypatch, capsys
+) -> None:
+    bad = tmp_path / "suite.yaml"
+    bad.write_text("name: x\nsequences:\n  frame: 10\n")
+    assert _exit(monkeypatch, "run", "--suite", str(bad), "--out", str(tmp_path / "o")) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and str(bad) in err and "unknown key sequences.frame" in err
+    # a shard folder of another suite
+    other = tmp_path / "other"
+    shutil.copytree(quick, other)
+    rec = json.loads((other / "suite.json").read_text())
+    rec["seeds"], rec["suite_hash"] = [5], "0123456789abcdef"
+    (other / "suite.json").write_text(json.dumps(rec))
+    code = _exit(monkeypatch, "merge", "--out", str(tmp_path / "m"), str(quick), str(other))
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and f"{other}: results of another suite" in err
+    # a run into a folder of another suite
+    code = _exit(
+        monkeypatch,
+        "run",
+        "--suite",
+        "quick",
+        "--out",
+        str(other),
+        "--cache-dir",
+        str(cache),
+        "--no-progress",
+    )
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and "holds results of another suite" in err
+    # a bundle that fails to load
+    broken = tmp_path / "bundle"
+    broken.mkdir()
+    code = _exit(
+        monkeypatch,
+        "run",
+        "--suite",
+        "quick",
+        "--bundles",
+        str(broken),
+        "--out",
+        str(tmp_path / "o2"),
+        "--cache-dir",
+        str(cache),
+    )
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and str(broken) in err and "manifest" in err
+    # an unknown method
+    code = _exit(
+        monkeypatch, "run", "--suite", "quick", "--methods", "nope", "--out", str(tmp_path / "o3")
+    )
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "unknown 'nope'" in err
+
+
+def test_bootstrap_value_and_interval() -> None:
+    # two seeds, three sequences: the value is the mean over seeds of the pooled AUC
+    d = np.ones(2)
+    s0 = [(np.array([0.01, 0.02]), d), (np.array([0.05, np.inf]), d), (np.array([0.03, 0.2]), d)]
+    s1 = [(np.array([0.02, 0.02]), d), (np.array([0.04, 0.06]), d), (np.array([np.inf] * 2), d)]
+    est = bootstrap([s0, s1], lambda e, _: vocap_reference(e), 200)
+    pooled = [np.concatenate([e for e, _ in s]) for s in (s0, s1)]
+    assert est.value == pytest.approx(np.mean([vocap_reference(p) for p in pooled]))
+    assert est.lo <= est.value <= est.hi and est.hi - est.lo > 1.0
+    assert (est.n_sequences, est.n_frames) == (3, 6)
+    same = bootstrap([[s0[0]] * 3], lambda e, _: vocap_reference(e), 50)
+    assert same.lo == same.hi == pytest.approx(same.value)  # identical sequences: no spread
+    # tracked share: error below 0.1 diameter
+    assert tracked_stat(np.array([0.01, 0.05, np.inf]), np.array([0.2, 0.2, 0.2])) == (
+        pytest.approx(100 / 3)
+    )
+
+
+def test_reacquisition_times() -> None:
+    ok = np.array([1, 1, 0, 0, 1, 0, 1, 1, 0, 0], bool)
+    assert reacquisition(ok) == ([2, 1], 1)  # lost at 2 (back at 4), at 5 (back at 6), at 8
+    assert reacquisition(np.zeros(5, bool)) == ([], 0)  # never tracked: no loss
+
+
+def test_bench_imports_chpf_and_data_gen_only() -> None:
+    """bench sits beside data_gen: it may use chpf and data_gen, never torch or training."""
+    import ast
+
+    import bench
+
+    forbidden = {"torch", "torchvision", "lightning", "onnx", "training", "export"}
+    for path in Path(bench.__file__).parent.rglob("*.py"):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        roots = {
+            a.name.split(".")[0]
+            for n in ast.walk(tree)
+            if isinstance(n, ast.Import)
+            for a in n.names
+        }
+        roots |= {
+            n.module.split(".")[0]
+            for n in ast.walk(tree)
+            if isinstance(n, ast.ImportFrom) and n.level == 0 and n.module
+        }
+        assert not roots & forbidden, (path.name, roots & forbidden)
