@@ -7,10 +7,13 @@ Usage::
                    [--shard I --num-shards M] [--cache-dir DIR] [--no-progress] [--no-report]
     chpf-bench report DIR
     chpf-bench merge --out DIR SHARD_DIR [SHARD_DIR ...]
+    chpf-bench likelihoods DIR
 
 ``run`` builds (or reuses) the suite's held-out test sequences, runs every job that is not
 finished yet (bench.runner) and writes the report (bench.report) unless it runs one shard of
 several. ``merge`` gathers the finished jobs of shard folders of one suite, then reports.
+``likelihoods`` scores L and C at the true pose on DIR's sequences by visible fraction
+(bench.likelihoods).
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.jobs import make_jobs, shard
+from bench.likelihoods import write_likelihoods
 from bench.report import SUITE_FILE, TIMINGS_FILE, write_report
 from bench.runner import SUMMARY, run_jobs
 from bench.sequences import (
@@ -33,6 +37,7 @@ from bench.sequences import (
     build_sequences,
     default_cache_dir,
     resolve_bundles,
+    sequences_from_json,
     sequences_to_json,
 )
 from bench.suite import load_suite, suite_record
@@ -72,7 +77,21 @@ def build_parser() -> argparse.ArgumentParser:
     m = sub.add_parser("merge", help="gather shard folders of one suite into --out and report")
     m.add_argument("--out", required=True, type=Path)
     m.add_argument("shards", nargs="+", type=Path)
+    lik = sub.add_parser(
+        "likelihoods", help="L and C at the true pose on DIR's sequences, by visible fraction"
+    )
+    lik.add_argument("dir", type=Path)
     return p
+
+
+def _likelihoods(folder: Path) -> int:
+    path = folder / SEQUENCES_FILE
+    if not path.is_file():
+        raise OutputError(f"{folder}: not a chpf-bench run folder (no {SEQUENCES_FILE})")
+    seqs = sequences_from_json(json.loads(path.read_text(encoding="utf-8")))
+    with lock_output_dir(folder, "chpf-bench likelihoods"):
+        print(write_likelihoods(folder, seqs))
+    return 0
 
 
 def _check_suite(folder: Path, record: dict[str, Any]) -> None:
@@ -184,6 +203,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _run(args)
     if args.cmd == "merge":
         return _merge(args)
+    if args.cmd == "likelihoods":
+        return _likelihoods(args.dir)
     with lock_output_dir(args.dir, "chpf-bench report"):
         print(f"report: {write_report(args.dir)}")
     return 0

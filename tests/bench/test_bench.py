@@ -15,6 +15,7 @@ import trimesh
 from bench import cli
 from bench.stats import bootstrap, reacquisition, tracked_stat
 from chpf.bop import BopDataset, read_results_csv
+from chpf.errors import OutputError
 from tests.helpers import vocap_reference
 
 
@@ -266,3 +267,27 @@ def test_bench_imports_chpf_and_data_gen_only() -> None:
             if isinstance(n, ast.ImportFrom) and n.level == 0 and n.module
         }
         assert not roots & forbidden, (path.name, roots & forbidden)
+
+
+def test_likelihoods_at_the_truth_by_visible_fraction(quick: Path, tmp_path: Path) -> None:
+    """Every visible instance of the tracked object is scored once, in its band; the shipped
+    classifier calls the well visible ones aligned; a folder that is no run is one line."""
+    assert _main("likelihoods", str(quick)) == 0
+    with open(quick / "report" / "likelihoods.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    seqs = json.loads((quick / "sequences.json").read_text())
+    visible = []
+    for s in seqs:
+        scene = BopDataset(s["root"]).scene("test", s["scene_id"])
+        visible += [
+            info.visib_fract
+            for im in scene.image_ids()
+            for gt, info in zip(scene.gt[im], scene.gt_info[im], strict=True)
+            if gt.obj_id == s["obj_id"] and info.bbox_visib[2] > 0
+        ]
+    assert sum(int(r["frames"]) for r in rows) == len(visible)
+    top = next(r for r in rows if r["band"] == "90%-100%")
+    assert int(top["frames"]) == sum(v >= 0.9 for v in visible)
+    assert float(top["mean_C"]) < 0.5 and float(top["aligned_pct"]) > 50.0
+    with pytest.raises(OutputError, match="not a chpf-bench run folder"):
+        _main("likelihoods", str(tmp_path))
