@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.report import csv_text, md_table
 from bench.sequences import Sequence
 from chpf.atomic import atomic_write_text
 from chpf.bop import BopDataset
@@ -78,13 +79,10 @@ def band_rows(scores: dict[str, np.ndarray]) -> list[tuple[Any, ...]]:
 def write_likelihoods(out: Path, seqs: list[Sequence]) -> str:
     """Score ``seqs``, write ``out/report/likelihoods.{csv,md}``; the markdown table."""
     rows = band_rows(truth_scores(seqs))
-    lines = ["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
-    lines += ["| " + " | ".join(str(v) for v in r) + " |" for r in rows]
-    table = "\n".join(lines)
+    table = md_table(list(HEADER), [[str(v) for v in r] for r in rows])
     folder = out / "report"
     folder.mkdir(parents=True, exist_ok=True)
-    csv_text = "\n".join(",".join(str(v) for v in r) for r in [HEADER, *rows]) + "\n"
-    atomic_write_text(folder / "likelihoods.csv", csv_text)
+    atomic_write_text(folder / "likelihoods.csv", csv_text([list(r) for r in rows], list(HEADER)))
     atomic_write_text(
         folder / "likelihoods.md",
         "# L and C at the true pose, by visible fraction\n\n" + table + "\n",

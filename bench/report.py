@@ -134,7 +134,8 @@ class Figures:
         }
 
 
-def _md_table(head: list[str], rows: list[list[str]]) -> str:
+def md_table(head: list[str], rows: list[list[str]]) -> str:
+    """A markdown table of ``head`` and ``rows`` (cells already text)."""
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
@@ -153,7 +154,7 @@ def headline_table(fig: Figures, auc: dict, track: dict) -> str:
             rows.append(
                 [m, mod, *cells, _fmt(t["tracked"]), _num(t["reacq_s"], 2), _num(t["fps"], 1)]
             )
-    return _md_table(head, rows)
+    return md_table(head, rows)
 
 
 def _num(x: float, digits: int) -> str:
@@ -170,10 +171,11 @@ def level_table(fig: Figures, auc: dict) -> str:
             for lv in fig.levels[:-1]:
                 cells = [_fmt(auc[(m, mod, lv, sub, k)]) for sub in SUBSETS for k in METRICS]
                 rows.append([m, mod, lv, *cells])
-    return _md_table(head, rows)
+    return md_table(head, rows)
 
 
-def _csv(rows: list[list[Any]], head: list[str]) -> str:
+def csv_text(rows: list[list[Any]], head: list[str]) -> str:
+    """CSV text: the header ``head``, then ``rows``."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(head)
@@ -386,14 +388,14 @@ def write_report(out: Path) -> Path:
         [*key[:4], METRICS[key[4]], *_rounded(e), e.n_sequences, e.n_frames]
         for key, e in auc.items()
     ]
-    atomic_write_text(rep / "auc.csv", _csv(rows, head))
+    atomic_write_text(rep / "auc.csv", csv_text(rows, head))
     thead = ["method", "modality", "tracked_pct", "ci_lo", "ci_hi", "reacq_s", "losses"]
     thead += ["unrecovered", "fps"]
     trows = [
         [m, mod, *_rounded(t["tracked"]), round(t["reacq_s"], 3), *_counts(t)]
         for (m, mod), t in track.items()
     ]
-    atomic_write_text(rep / "tracking.csv", _csv(trows, thead))
+    atomic_write_text(rep / "tracking.csv", csv_text(trows, thead))
     doc = {
         "suite": suite,
         "jobs_done": len(summaries),
