@@ -30,6 +30,21 @@ def _exit(monkeypatch: pytest.MonkeyPatch, *args: str) -> int:
     return ei.value.code
 
 
+def _run_quick(out: Path, cache: Path, *extra: str) -> int:
+    """chpf-bench run of the quick suite into ``out``, sequences cached in ``cache``."""
+    return _main(
+        "run",
+        "--suite",
+        "quick",
+        "--out",
+        str(out),
+        "--cache-dir",
+        str(cache),
+        "--no-progress",
+        *extra,
+    )
+
+
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("bench-cache")
@@ -38,12 +53,7 @@ def cache(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory, cache) -> Path:
     out = tmp_path_factory.mktemp("bench") / "quick"
-    assert (
-        _main(
-            "run", "--suite", "quick", "--out", str(out), "--cache-dir", str(cache), "--no-progress"
-        )
-        == 0
-    )
+    assert _run_quick(out, cache) == 0
     return out
 
 
@@ -118,19 +128,7 @@ def test_rerun_resumes(quick: Path, cache: Path, capsys) -> None:
     kept = (jobs[1] / "summary.json").stat().st_mtime_ns
     before = _auc_rows(quick)
     capsys.readouterr()
-    assert (
-        _main(
-            "run",
-            "--suite",
-            "quick",
-            "--out",
-            str(quick),
-            "--cache-dir",
-            str(cache),
-            "--no-progress",
-        )
-        == 0
-    )
+    assert _run_quick(quick, cache) == 0
     out = capsys.readouterr().out
     assert f"1 jobs run ({len(jobs) - 1} already done)" in out
     assert "building" not in out  # the sequences came from the cache
@@ -142,23 +140,7 @@ def test_rerun_resumes(quick: Path, cache: Path, capsys) -> None:
 def test_shards_merge_to_the_same_report(quick: Path, cache: Path, tmp_path: Path) -> None:
     a, b, merged = tmp_path / "a", tmp_path / "b", tmp_path / "merged"
     for i, d in enumerate((a, b)):
-        assert (
-            _main(
-                "run",
-                "--suite",
-                "quick",
-                "--out",
-                str(d),
-                "--cache-dir",
-                str(cache),
-                "--shard",
-                str(i),
-                "--num-shards",
-                "2",
-                "--no-progress",
-            )
-            == 0
-        )
+        assert _run_quick(d, cache, "--shard", str(i), "--num-shards", "2") == 0
         assert not (d / "report").exists()  # one shard of several: no report
     n_a, n_b = (len(list((d / "jobs").iterdir())) for d in (a, b))
     assert n_a + n_b == len(list((quick / "jobs").iterdir())) and n_a and n_b
