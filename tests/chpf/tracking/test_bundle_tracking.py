@@ -353,6 +353,17 @@ def _shipped_bundle() -> Bundle:
     return Bundle.load(shipped_bundle())
 
 
+def _can_passes_in_front(sequence_renderer, bundle: Bundle, frames: int, shown: slice):
+    """The bundle's object at 3 diameters with a can passing in front (``frames`` frames), and
+    the visible fraction of the object over the ``shown`` frames (its mask against a 21-frame
+    sequence without the can; ``shown`` within its frames)."""
+    z = 3.0 * bundle.obj_info.diameter
+    seq = sequence_renderer(frames, name=bundle.obj_info.name, z=z, occluder="can")
+    alone = sequence_renderer(21, name=bundle.obj_info.name, z=z)
+    visible = seq.mask[shown].sum(axis=(1, 2)) / alone.mask[shown].sum(axis=(1, 2))
+    return seq, visible
+
+
 def test_shipped_bundle_likelihoods_rank_the_true_pose(sequence_renderer):
     """The trained L peaks at the true pose and C calls it aligned; C calls misaligned a pose
     shifted by a third of the diameter (within the training's crop jitter, ~0.04 diameters, it
@@ -417,10 +428,7 @@ def test_shipped_bundle_tracks_through_an_occluder(
     rotation error (deg) stay below the bounds (measured: E2E 0.078, 5.6 deg; PoseRBPF 0.295,
     10.9 deg, the paper's setting; CH-PF 0.286, 8.3 deg, the default)."""
     bundle = _shipped_bundle()
-    d = bundle.obj_info.diameter
-    seq = sequence_renderer(30, name=bundle.obj_info.name, z=3.0 * d, occluder="can")
-    alone = sequence_renderer(21, name=bundle.obj_info.name, z=3.0 * d)
-    visible = seq.mask[8:21].sum(axis=(1, 2)) / alone.mask[8:21].sum(axis=(1, 2))
+    seq, visible = _can_passes_in_front(sequence_renderer, bundle, 30, slice(8, 21))
     assert visible.min() < 0.6 and visible.max() < 1.0  # the can hides a good part of the box
     errs = []
     for seed in (0, 1, 2):
@@ -458,10 +466,7 @@ def test_shipped_bundle_c_calls_an_occluded_but_aligned_crop_aligned(sequence_re
     (measured: 0.015 at most, at 64 % visible), while the same poses turned 45 deg are called
     misaligned (0.956 at least)."""
     bundle = _shipped_bundle()
-    d = bundle.obj_info.diameter
-    seq = sequence_renderer(21, name=bundle.obj_info.name, z=3.0 * d, occluder="can")
-    alone = sequence_renderer(21, name=bundle.obj_info.name, z=3.0 * d)
-    visible = seq.mask[8:14].sum(axis=(1, 2)) / alone.mask[8:14].sum(axis=(1, 2))
+    seq, visible = _can_passes_in_front(sequence_renderer, bundle, 21, slice(8, 14))
     assert visible.min() < 0.6 and visible.max() < 0.9  # the can hides a good part of the box
     lik = Tracker.from_bundle(bundle, method="chpf").likelihood
     turn = axis_angle_to_matrix(np.radians(45.0) * np.array([0.0, 1.0, 0.0]))
