@@ -146,9 +146,7 @@ def _uniform(rng: np.random.Generator, span: tuple[float, float], shape: tuple[i
     return rng.uniform(span[0], span[1], shape)
 
 
-def change_appearance(
-    x: torch.Tensor, cfg: BatchAugment, rng: np.random.Generator
-) -> torch.Tensor:
+def change_appearance(x: torch.Tensor, cfg: BatchAugment, rng: np.random.Generator) -> torch.Tensor:
     """Colour cast, brightness, contrast, gamma, blur and noise per crop of x (B, 3, S, S)."""
     b = x.shape[0]
 

@@ -76,6 +76,7 @@ def test_quick_suite_report_is_scored_as_computed_by_hand(quick: Path) -> None:
         "report.md",
         "auc.csv",
         "tracking.csv",
+        "alpha.csv",
         "report.json",
         "auc_by_level.png",
         "curves.png",
@@ -85,6 +86,7 @@ def test_quick_suite_report_is_scored_as_computed_by_hand(quick: Path) -> None:
     assert list(rep.glob("sequence_*.png"))
     md = (rep / "report.md").read_text()
     assert "| chpf | rgb |" in md and "| srl | rgbd |" in md
+    assert "## Doubt: alpha by frame state" in md
     suite = json.loads((quick / "suite.json").read_text())
     jobs = sorted((quick / "jobs").iterdir())
     levels = len(suite["sequences"]["occlusion"])
@@ -273,3 +275,39 @@ def test_likelihoods_at_the_truth_by_visible_fraction(quick: Path, tmp_path: Pat
     assert float(top["mean_C"]) < 0.5 and float(top["aligned_pct"]) > 50.0
     with pytest.raises(OutputError, match="not a chpf-bench run folder"):
         _main("likelihoods", str(tmp_path))
+
+
+def test_alpha_by_frame_state_averages_each_seeds_mean() -> None:
+    """The report's alpha table: per state, the mean of the seeds' means over the frames of
+    that state (tracked < 0.1 d, lost > 0.5 d, occluded / hidden and tracked)."""
+    from bench.report import Figures
+
+    d = 0.2
+
+    def summary(seed: int, adds: list[float], visib: list[float], alpha: list[float]) -> dict:
+        return {
+            "method": "chpf",
+            "modality": "rgb",
+            "sequence": "s1",
+            "seed": seed,
+            "level": "heavy",
+            "diameter": d,
+            "adds": np.array(adds),
+            "visib": np.array(visib),
+            "alpha": np.array(alpha),
+        }
+
+    suite = {
+        "methods": ["chpf"],
+        "modalities": ["rgb"],
+        "sequences": {"occlusion": ["heavy"]},
+        "seeds": [0, 1],
+        "report": {"bootstrap": 10},
+    }
+    s0 = summary(0, [0.01, 0.01, 0.5, 0.01], [1.0, 0.5, 0.5, 0.2], [0.1, 0.3, 0.9, np.nan])
+    s1 = summary(1, [0.01, 0.2, np.inf, 0.01], [1.0, 1.0, 0.5, 0.6], [0.2, 0.5, 0.7, 0.4])
+    got = Figures(suite, [s0, s1]).alpha_by_state("chpf", "rgb")
+    assert got["tracked"] == pytest.approx((0.25, 0.2, 0.3, 4))  # seed 0: (0.1+0.3)/2, seed 1: 0.3
+    assert got["lost"] == pytest.approx((0.75, 0.6, 0.9, 3))  # 0.9; (0.5 + 0.7) / 2
+    assert got["occluded tracked"] == pytest.approx((0.35, 0.3, 0.4, 2))
+    assert got["hidden tracked"][3] == 0  # its only frame has no alpha

@@ -53,8 +53,10 @@ def test_colour_cast_darkens_channels_and_blur_smooths() -> None:
     assert ratio.max() <= 1.0 + 1e-6 and ratio.min() < 0.8
     blur = BatchAugment(blur_share=1.0, blur_sigma=(1.5, 1.5))
     y = change_appearance(x, blur, np.random.default_rng(0))
+
     def roughness(t: torch.Tensor) -> float:
         return float((t[..., 1:] - t[..., :-1]).abs().mean())
+
     assert roughness(y) < 0.5 * roughness(x)
     assert y.mean() == pytest.approx(float(x.mean()), abs=0.01)  # blurring keeps the mean
 
