@@ -273,6 +273,7 @@ def test_likelihoods_at_the_truth_by_visible_fraction(quick: Path, tmp_path: Pat
     top = next(r for r in rows if r["band"] == "90%-100%")
     assert int(top["frames"]) == sum(v >= 0.9 for v in visible)
     assert float(top["mean_C"]) < 0.5 and float(top["aligned_pct"]) > 50.0
+    assert float(top["mean_C_near"]) < 0.5  # a few degrees and millimetres off: still aligned
     with pytest.raises(OutputError, match="not a chpf-bench run folder"):
         _main("likelihoods", str(tmp_path))
 
@@ -311,3 +312,20 @@ def test_alpha_by_frame_state_averages_each_seeds_mean() -> None:
     assert got["lost"] == pytest.approx((0.75, 0.6, 0.9, 3))  # 0.9; (0.5 + 0.7) / 2
     assert got["occluded tracked"] == pytest.approx((0.35, 0.3, 0.4, 2))
     assert got["hidden tracked"][3] == 0  # its only frame has no alpha
+
+
+def test_near_poses_lie_within_a_tenth_of_the_diameter() -> None:
+    """The poses `likelihoods` scores near the truth are off it, and within 0.1 d by ADD."""
+    from bench.likelihoods import NEAR, near_poses
+    from chpf.geometry import random_rotations
+    from chpf.metrics import add
+
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-0.1, 0.1, (500, 3))
+    d = float(np.max(np.linalg.norm(pts[:, None] - pts[None], axis=2)))
+    for R in random_rotations(5, rng):
+        t = np.array([0.05, -0.02, 0.8])
+        Rn, tn = near_poses(R, t, d, rng)
+        assert Rn.shape == (NEAR, 3, 3) and tn.shape == (NEAR, 3)
+        errs = [add(pts, Rn[i], tn[i], R, t) for i in range(NEAR)]
+        assert 0.0 < min(errs) and max(errs) < 0.1 * d
