@@ -92,3 +92,24 @@ def test_classifier_trains_on_augmented_crops(
     assert len(seen) == 4 and all(c.occluder_share == 1.0 and c.active for c in seen)
     ckpt = torch.load(tmp_path / "runs" / "checkpoints" / "last.ckpt", weights_only=False)
     assert ckpt["hyper_parameters"]["augment"]["colour_cast"] == 0.3
+
+
+def test_augment_config_turns_it_on_over_the_default_recipe(tmp_path) -> None:
+    """configs/train_ch.yaml leaves the augmentation off (the shipped classifier);
+    configs/train_ch_augment.yaml on top of it turns it on."""
+    from pathlib import Path
+
+    from training.cli import make_cli
+
+    root = Path(__file__).resolve().parents[2] / "configs"
+    base = ["--model.init_from_ae", "null", "--model.extra_pairs", "0"]
+    base += ["--trainer.default_root_dir", str(tmp_path)]
+
+    def augment(*configs: str) -> BatchAugment:
+        args = [a for c in configs for a in ("--config", str(root / c))]
+        ns = make_cli("ch", [*args, *base]).config["model"]["augment"]
+        return BatchAugment(**vars(ns))
+
+    assert not augment("train_ch.yaml").active
+    on = augment("train_ch.yaml", "train_ch_augment.yaml")
+    assert on.active and on.occluder_share == 0.5 and on.colour_cast == 0.35
