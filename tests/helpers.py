@@ -164,3 +164,18 @@ def count_video_frames(path: Path) -> int:
         n += 1
     cap.release()
     return n
+
+
+def console_error(cli, capsys, monkeypatch, *argv) -> str:
+    """Run a console script's ``cli()`` with ``argv``; assert exit 2 with one stderr line
+    ``error: ...``; return that line."""
+    import sys
+
+    import pytest
+
+    monkeypatch.setattr(sys, "argv", ["prog", *(str(a) for a in argv)])
+    with pytest.raises(SystemExit) as exc:
+        cli()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and err[0].startswith("error: "), err
+    return err[0]

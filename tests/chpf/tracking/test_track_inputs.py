@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
-import warnings
 
 import numpy as np
 import pytest
@@ -20,6 +18,7 @@ from tests.helpers import (
     DEMO_K,
     DEMO_ROOT,
     DEMO_SCENE,
+    console_error,
     count_video_frames,
     demo_box,
     demo_frames,
@@ -163,24 +162,13 @@ def test_unreadable_frames_are_skipped_and_the_outputs_stay_valid(images, camera
     _check_pose_lines(_poses(out / "p.jsonl"), [1, 2, 4], ["chpf"])
 
 
-def _cli_error(capsys, monkeypatch, *argv) -> str:
-    """Run the console script; assert exit 2 with one stderr line; return that line."""
-    monkeypatch.setattr(sys, "argv", ["chpf-track", *(str(a) for a in argv)])
-    with pytest.raises(SystemExit) as exc, warnings.catch_warnings():
-        warnings.simplefilter("error")  # a refusal is an error, not a warning
-        cli()
-    err = capsys.readouterr().err.strip().splitlines()
-    assert exc.value.code == 2 and len(err) == 1 and err[0].startswith("error: "), err
-    return err[0]
-
-
 def test_bad_plain_inputs_exit_2_with_one_line_naming_the_file(
     images, camera, tmp_path, capsys, monkeypatch
 ):
     base = ["--bundle", shipped_bundle(), "--out", tmp_path / "o"]
 
     def refused(*argv) -> str:
-        return _cli_error(capsys, monkeypatch, *base, *argv)
+        return console_error(cli, capsys, monkeypatch, *base, *argv)
 
     ok = ["--camera", camera, "--init-box", _box()]
     wrong = tmp_path / "wrong.json"
