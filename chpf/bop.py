@@ -64,8 +64,10 @@ __all__ = [
     "model_info_from_object",
     "model_path",
     "models_dir",
+    "read_depth",
     "read_detections",
     "read_results_csv",
+    "read_rgb",
     "rgb_path",
     "scene_dir",
     "write_depth",
@@ -520,6 +522,26 @@ def _read_image(path: Path, flags: int) -> np.ndarray:
     return img
 
 
+def read_rgb(path: str | Path) -> np.ndarray:
+    """(H,W,3) uint8 RGB of a colour image file; DatasetError if missing, undecodable or not
+    8-bit."""
+    path = Path(path)
+    img = _read_image(path, cv2.IMREAD_COLOR)
+    if img.dtype != np.uint8:
+        raise DatasetError(f"{path}: expected an 8-bit colour image, got {img.dtype}")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def read_depth(path: str | Path, depth_scale: float) -> np.ndarray:
+    """(H,W) float32 metres of a single-channel depth image, depth_mm = raw * ``depth_scale``
+    (0 = missing); DatasetError if missing, undecodable or not a uint16 / uint8 image."""
+    path = Path(path)
+    raw = _read_image(path, cv2.IMREAD_UNCHANGED)
+    if raw.ndim != 2 or raw.dtype not in (np.uint16, np.uint8):
+        raise DatasetError(f"{path}: depth must be a single-channel uint16 png, got {raw.dtype}")
+    return (raw.astype(np.float32) * np.float32(depth_scale / MM)).astype(np.float32)
+
+
 def image_size(path: str | Path) -> tuple[int, int] | None:
     """(height, width) of a png/jpg from its header without decoding; None if not found."""
     path = Path(path)
@@ -674,11 +696,9 @@ class BopScene:
         """(H,W,3) uint8 RGB; DatasetError if missing, ImageSizeError if the size disagrees."""
         cam = self.camera(im_id)
         path = self.rgb_path(im_id)
-        img = _read_image(path, cv2.IMREAD_COLOR)
+        img = read_rgb(path)
         self._check_size(path, img.shape[:2], cam, others=[self.depth_path(im_id)])
-        if img.dtype != np.uint8:
-            raise DatasetError(f"{path}: expected an 8-bit colour image, got {img.dtype}")
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        return img
 
     def depth(self, im_id: int) -> np.ndarray | None:
         """(H,W) float32 metres (0 = missing), or None if the scene has no depth image."""
@@ -686,13 +706,9 @@ class BopScene:
         path = self.depth_path(im_id)
         if not path.is_file():
             return None
-        raw = _read_image(path, cv2.IMREAD_UNCHANGED)
-        if raw.ndim != 2 or raw.dtype not in (np.uint16, np.uint8):
-            raise DatasetError(
-                f"{path}: depth must be a single-channel uint16 png, got {raw.dtype}"
-            )
-        self._check_size(path, raw.shape, cam, others=[self.rgb_path(im_id)])
-        return (raw.astype(np.float32) * np.float32(cam.depth_scale / MM)).astype(np.float32)
+        depth = read_depth(path, cam.depth_scale)
+        self._check_size(path, depth.shape, cam, others=[self.rgb_path(im_id)])
+        return depth
 
     def mask_visib(self, im_id: int, gt_idx: int) -> np.ndarray:
         """(H,W) bool visible mask of instance ``gt_idx``."""

@@ -4,6 +4,9 @@ The file is a JSON list of ``{"scene_id", "image_id", "category_id", "bbox": [x,
 "score", "time"}`` (extra keys such as ``"segmentation"`` are ignored). ``read_detections`` keeps
 the best-scoring box per (scene_id, image_id, category_id); ``category_id`` is the BOP obj_id.
 
+``read_detections_csv`` reads the simpler per-frame CSV ``frame,x,y,w,h[,score]`` of
+``chpf-track --images`` / ``--video`` (a header line is optional).
+
 ``SimulatedDetector`` makes such detections from ground truth (``chpf-gen-data sequences`` writes
 them; ``chpf-track`` runs it on datasets without a detections file). It is NOT a real detector.
 """
@@ -18,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from chpf.atomic import atomic_write_text
-from chpf.errors import BopFormatError, DatasetError
+from chpf.errors import BopFormatError, DatasetError, SourceError
 
 if TYPE_CHECKING:
     from chpf.bop import GtInfo
@@ -27,6 +30,7 @@ __all__ = [
     "SIMULATED_DETECTOR_DEFAULTS",
     "SimulatedDetector",
     "read_detections",
+    "read_detections_csv",
     "write_detections",
 ]
 
@@ -85,6 +89,41 @@ def read_detections(
         key, bbox, score = _check(det, path, i)
         if key not in best or score > best[key][0]:
             best[key] = (score, bbox)
+    return {k: v[1] for k, v in sorted(best.items())}
+
+
+def read_detections_csv(path: str | Path) -> dict[int, tuple[float, float, float, float]]:
+    """``{frame: (x, y, w, h)}`` pixels from a CSV of ``frame,x,y,w,h[,score]`` rows (an optional
+    header line first; the best score kept per frame, score 1 when absent); SourceError naming
+    the file and line when a row is not 5 or 6 numbers with an integer frame."""
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except FileNotFoundError:
+        raise SourceError(f"{path}: detections file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise SourceError(f"{path}: cannot read the detections file ({err})") from None
+    best: dict[int, tuple[float, tuple[float, float, float, float]]] = {}
+    for n, line in enumerate(lines, start=1):
+        cells = [c.strip() for c in line.split(",")]
+        if not line.strip() or (n == 1 and cells[0].lower() == "frame"):
+            continue
+        try:
+            values = [float(c) for c in cells]
+        except ValueError:
+            values = []
+        if (
+            len(values) not in (5, 6)
+            or not all(map(math.isfinite, values))
+            or not values[0].is_integer()
+        ):
+            raise SourceError(
+                f"{path}: line {n}: expected frame,x,y,w,h[,score] (numbers, integer frame), "
+                f"got {line.strip()!r}"
+            )
+        frame, score = int(values[0]), values[5] if len(values) == 6 else 1.0
+        if frame not in best or score > best[frame][0]:
+            best[frame] = (score, (values[1], values[2], values[3], values[4]))
     return {k: v[1] for k, v in sorted(best.items())}
 
 

@@ -43,3 +43,8 @@ class OutputError(ChpfError):
 
 class InputError(ChpfError):
     """An input given to the API has the wrong type or form (e.g. a box given as text)."""
+
+
+class SourceError(ChpfError):
+    """A tracking input beyond BOP (image folder, video, camera file, box) is unreadable, empty
+    or inconsistent with the frames."""

@@ -1,27 +1,36 @@
-"""``chpf-track``: track an object through a BOP dataset with CH-PF and the baselines.
+"""``chpf-track``: track an object through a BOP dataset, an image folder or a video with CH-PF
+and the baselines.
 
 Usage::
 
-    chpf-track --bundle B --dataset BOP_DIR [--split test] [--scenes 1,2]
-               [--method chpf|srl|augmcl|annealing|e2e|poserbpf|poserbpf++|fixed|none|all|a,b]
-               [--modality rgb|rgbd] [--detections FILE] [--out DIR] [--config YAML] [--seed 0]
-               [--set section.key=value ...]
+    chpf-track --bundle B --dataset BOP_DIR [--split test] [--scenes 1,2] [--detections JSON]
+    chpf-track --bundle B (--images DIR [--depth DIR] [--depth-scale MM] | --video FILE)
+               --camera FILE (--init-box x,y,w,h | --detections CSV_OR_JSON) [--fps 30]
     chpf-track --demo [--bundle B] [--out DIR]
+    common: [--method chpf|srl|augmcl|annealing|e2e|poserbpf|poserbpf++|fixed|none|all|a,b]
+            [--modality rgb|rgbd] [--out DIR] [--config YAML] [--seed 0] [--set key=value ...]
+            [--overlay FILE.mp4|DIR] [--poses FILE.jsonl]
 
 Writes to ``--out``: per method a BOP result CSV (``METHOD_DATASET-SPLIT.csv``, readable by
-``chpf-eval``) and a frame log (``log_METHOD.csv``: alpha, sum L, sum C, ESS, errors, ms per
-stage), both flushed frame by frame (a rerun resumes); ``plots/scene_XXXXXX.png`` (ADD-S error
-and alpha over time); and, when the dataset has ground truth, prints the ADD / ADD-S AUC table.
-The first output line says where the detection boxes come from.
+``chpf-eval``; an image folder or video is scene 1 of dataset NAME, split ``images`` / ``video``)
+and a frame log (``log_METHOD.csv``: alpha, sum L, sum C, ESS, errors, ms per stage), both
+flushed frame by frame (a rerun resumes); ``plots/scene_XXXXXX.png`` (ADD-S error and alpha over
+time); and, when the dataset has ground truth, prints the ADD / ADD-S AUC table. ``--overlay``
+and ``--poses`` write the estimates drawn on the frames and one JSON line per frame
+(``chpf.tracking.overlay``, ``chpf.tracking.pose_stream``). The first output line says where
+the detection boxes come from.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from chpf.atomic import atomic_write_text
 from chpf.bop import BopDataset, read_results_csv
@@ -29,12 +38,27 @@ from chpf.bundle import Bundle
 from chpf.console import run_main, scene_list
 from chpf.errors import BundleError, ConfigError, DatasetError
 from chpf.model_points import model_points
-from chpf.outdir import check_out_dir, claim_settings, lock_output_dir
+from chpf.outdir import check_out_dir, check_out_file, claim_settings, lock_output_dir
+from chpf.sources.boxes import parse_box
+from chpf.sources.frame import FrameSource
 from chpf.tracking.boxes import make_box_source
 from chpf.tracking.config import MODALITIES, make_config
 from chpf.tracking.methods import method_names
-from chpf.tracking.run_dataset import MethodRun, run_dataset
-from chpf.tracking.run_record import SETTINGS_FILE, clear_outputs, track_settings
+from chpf.tracking.overlay import check_overlay_target
+from chpf.tracking.run_dataset import (
+    DEFAULT_FPS,
+    FrameSink,
+    MethodRun,
+    bop_sequences,
+    run_sequences,
+)
+from chpf.tracking.run_record import (
+    SETTINGS_FILE,
+    bop_inputs,
+    clear_outputs,
+    file_record,
+    track_settings,
+)
 from chpf.tracking.runlog import NETWORK_STAGES
 from chpf.tracking.tracker import Tracker
 
@@ -55,7 +79,8 @@ def parse_methods(text: str) -> list[str]:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="chpf-track",
-        description="Track one object through a BOP dataset with CH-PF and baselines.",
+        description="Track one object through a BOP dataset, an image folder or a video with "
+        "CH-PF and baselines.",
     )
     p.add_argument(
         "--demo",
@@ -67,15 +92,63 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dataset", type=Path, help="BOP dataset root")
     p.add_argument("--split", default="test", help="split folder (default: test)")
     p.add_argument("--scenes", type=scene_list, default=None, help="e.g. 48,49 (default: all)")
+    p.add_argument(
+        "--images", type=Path, default=None, help="folder of image files (sorted by name)"
+    )
+    p.add_argument(
+        "--depth", type=Path, default=None, help="with --images: folder of as many depth images"
+    )
+    p.add_argument(
+        "--depth-scale",
+        type=float,
+        default=None,
+        help="mm per depth unit of --depth (default: the camera file's depth_scale, else 1)",
+    )
+    p.add_argument("--video", type=Path, default=None, help="a video file OpenCV can read")
+    p.add_argument(
+        "--camera",
+        type=Path,
+        default=None,
+        help="with --images / --video: camera file (JSON or YAML with K or fx, fy, cx, cy; "
+        "OpenCV calibration YAML); width and height, if given, are checked",
+    )
+    p.add_argument(
+        "--init-box",
+        type=parse_box,
+        default=None,
+        metavar="X,Y,W,H",
+        help="with --images / --video: the object's box in the first frame (pixels)",
+    )
+    p.add_argument(
+        "--fps",
+        type=float,
+        default=DEFAULT_FPS,
+        help="frame rate of inputs that record none (images, BOP), for the frame times and the "
+        f"overlay video (default {DEFAULT_FPS:g})",
+    )
     p.add_argument("--method", default="chpf", help="a method, a comma list, or 'all'")
     p.add_argument("--modality", default="rgb", choices=MODALITIES)
     p.add_argument(
         "--detections",
         type=Path,
         default=None,
-        help="BOP detections JSON (default: the simulated detector)",
+        help="BOP detections JSON (default: the simulated detector); with --images / --video "
+        "also a CSV frame,x,y,w,h[,score]",
     )
     p.add_argument("--out", type=Path, default=None, help="output folder (default: chpf_track_out)")
+    p.add_argument(
+        "--overlay",
+        type=Path,
+        default=None,
+        help="draw the estimate on every frame: a video (.mp4, .avi, .mov, .mkv) or a folder "
+        "of PNGs",
+    )
+    p.add_argument(
+        "--poses",
+        type=Path,
+        default=None,
+        help="stream one JSON line per frame and method (R, t in metres, alpha, ESS) to this file",
+    )
     p.add_argument("--config", type=Path, default=None, help="tracking options YAML")
     p.add_argument(
         "--overwrite",
@@ -96,6 +169,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plot", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
+
+
+@dataclass
+class TrackInput:
+    """What a run tracks: the (scene_id, frames) sequences, named ``name`` / ``split`` in the
+    result files; ``settings``: the input part of track_settings; ``boxes``: the first output
+    line; ``box_origin`` names the boxes in warnings; ``what`` says what is tracked; ``points``
+    (M,3) for the per-frame errors (None without ground truth); ``score``: the AUC table of the
+    runs, or None (then ``no_score`` says why)."""
+
+    name: str
+    split: str
+    sequences: list[tuple[int, FrameSource]]
+    settings: dict[str, Any]
+    boxes: str
+    box_origin: str
+    what: str
+    fps: float
+    points: np.ndarray | None = None
+    score: Callable[[dict[str, MethodRun]], str] | None = None
+    no_score: str = ""
 
 
 def _dataset_obj_ids(ds: BopDataset, split: str, scenes: list[int]) -> set[int]:
@@ -142,13 +236,8 @@ def stage_table(runs: dict[str, MethodRun]) -> str:
     return "\n".join(lines)
 
 
-def track(
-    args: argparse.Namespace, methods: list[str], dataset: Path, bundle: Bundle, fresh: bool = False
-) -> int:
-    """Run the methods on the dataset and report (shared by --dataset and --demo).
-
-    ``--out`` is locked while the run writes; its recorded settings must match this run's (see
-    chpf.tracking.run_record) unless ``--overwrite``; ``fresh`` clears its outputs first."""
+def bop_input(args: argparse.Namespace, dataset: Path, bundle: Bundle) -> TrackInput:
+    """The TrackInput of a BOP dataset (--dataset, --demo): its scenes, boxes, ground truth."""
     ds = BopDataset(dataset)
     scenes = ds.scene_ids(args.split)
     if args.scenes is not None:
@@ -165,6 +254,113 @@ def track(
             f"{dataset} has obj_ids {sorted(ids)}"
         )
     bundle.check_dataset(ds)
+    points, score = None, None
+    if any(ds.scene(args.split, s).gt for s in scenes):
+        try:
+            points = model_points(ds, obj_id)
+        except Exception as err:  # no mesh: track anyway, without per-frame errors
+            print(f"note: no per-frame errors ({err})")
+
+        def score(runs: dict[str, MethodRun]) -> str:
+            return auc_table(dataset, runs, args.split, scenes)
+
+    return TrackInput(
+        name=ds.root.resolve().name,
+        split=args.split,
+        sequences=bop_sequences(
+            ds, args.split, scenes, obj_id, boxes, args.modality == "rgbd", args.fps
+        ),
+        settings=bop_inputs(dataset, args.split, scenes, args.detections),
+        boxes=boxes.description,
+        box_origin=boxes.origin,
+        what=f"{len(scenes)} scene(s)",
+        fps=args.fps,
+        points=points,
+        score=score,
+        no_score=f"{dataset}: no ground truth in the tracked scenes, so no AUC table",
+    )
+
+
+def plain_input(args: argparse.Namespace, bundle: Bundle) -> TrackInput:
+    """The TrackInput of --images / --video: one sequence (scene 1), no ground truth."""
+    from chpf.sources.plain import open_plain
+
+    path = args.images if args.images is not None else args.video
+    kind = "images" if args.images is not None else "video"
+    source = open_plain(
+        args.images,
+        args.video,
+        args.camera,
+        bundle.obj_info.obj_id,
+        args.fps,
+        init_box=args.init_box,
+        detections=args.detections,
+        depth=args.depth,
+        depth_scale=args.depth_scale,
+    )
+    if args.init_box is not None:
+        shown = ",".join(f"{v:g}" for v in args.init_box)
+        boxes = f"detections: --init-box {shown} on the first frame only; the others have no box"
+    else:
+        n = len(source.boxes.by_frame)
+        boxes = f"detections: {n} boxes from {args.detections}; frames without one have no box"
+    n_frames = len(source.frame_ids())
+    settings = {
+        kind: str(path.resolve()),
+        "depth": None if args.depth is None else str(args.depth.resolve()),
+        "depth_scale": getattr(source, "depth_scale", None),
+        "camera": file_record(args.camera),
+        "init_box": None if args.init_box is None else list(args.init_box),
+        "detections": file_record(args.detections),
+        "fps": source.fps,
+    }
+    return TrackInput(
+        name=path.stem if kind == "video" else path.resolve().name,
+        split=kind,
+        sequences=[(1, source)],
+        settings=settings,
+        boxes=boxes,
+        box_origin=str(args.detections or "--init-box"),
+        what=f"{path} ({n_frames or 'unknown number of'} frames, {source.width}x{source.height})",
+        fps=source.fps,
+        no_score=f"{path}: no ground truth for an image folder or video, so no AUC table "
+        "(score the result CSV with chpf-eval against a dataset that has it)",
+    )
+
+
+def make_sinks(
+    args: argparse.Namespace, methods: list[str], bundle: Bundle, fps: float, cfg: Any
+) -> list[FrameSink]:
+    """The --overlay and --poses writers of the run (none without those options)."""
+    sinks: list[FrameSink] = []
+    if args.overlay is not None:
+        from chpf.tracking.model_outline import outline_points
+        from chpf.tracking.overlay import OverlayWriter
+
+        n = {m: cfg.filter.n_particles for m in methods}
+        axis = 0.5 * bundle.obj_info.diameter
+        sinks.append(OverlayWriter(args.overlay, methods, outline_points(bundle), axis, fps, n))
+    if args.poses is not None:
+        from chpf.tracking.pose_stream import PoseStream
+
+        sinks.append(PoseStream(args.poses, bundle.obj_info.obj_id, bundle.obj_info.name))
+    return sinks
+
+
+def track(
+    args: argparse.Namespace,
+    methods: list[str],
+    bundle: Bundle,
+    make_input: Callable[[], TrackInput],
+    fresh: bool = False,
+) -> int:
+    """Run the methods on the input that ``make_input`` builds and report (shared by --dataset,
+    --images / --video and --demo).
+
+    ``--out`` is locked while the run writes; its recorded settings must match this run's (see
+    chpf.tracking.run_record) unless ``--overwrite``; ``fresh`` clears its outputs first."""
+    inp = make_input()
+    obj_id = bundle.obj_info.obj_id
     cfg = tracking_config(args)
     trackers = {
         m: Tracker(bundle, method=m, modality=args.modality, seed=args.seed, config=cfg)
@@ -172,52 +368,39 @@ def track(
     }
     out = args.out
     with lock_output_dir(out, "chpf-track"):
-        settings = track_settings(
-            bundle,
-            dataset,
-            args.split,
-            scenes,
-            args.detections,
-            methods,
-            args.modality,
-            args.seed,
-            cfg,
-        )
+        settings = track_settings(bundle, inp.settings, methods, args.modality, args.seed, cfg)
         if claim_settings(out, SETTINGS_FILE, settings, args.overwrite or fresh) or fresh:
             clear_outputs(out)
-        print(boxes.description, flush=True)
-        points = None
-        has_gt = any(ds.scene(args.split, s).gt for s in scenes)
-        if has_gt:
-            try:
-                points = model_points(ds, obj_id)
-            except Exception as err:  # no mesh: track anyway, without per-frame errors
-                print(f"note: no per-frame errors ({err})")
+        print(inp.boxes, flush=True)
         print(
-            f"tracking obj_id {obj_id} ({bundle.obj_info.name}) in {len(scenes)} scene(s) with "
+            f"tracking obj_id {obj_id} ({bundle.obj_info.name}) in {inp.what} with "
             f"{', '.join(methods)} [{args.modality}, N={cfg.filter.n_particles}] -> {out}",
             flush=True,
         )
-        runs = run_dataset(
+        sinks = make_sinks(args, methods, bundle, inp.fps, cfg)
+        runs = run_sequences(
             trackers,
-            ds,
-            args.split,
-            scenes,
+            inp.sequences,
             obj_id,
-            boxes,
             out,
+            inp.name,
+            inp.split,
+            inp.box_origin,
             args.seed,
-            points,
+            inp.points,
             progress=not args.no_progress,
+            sinks=sinks,
         )
         print(stage_table(runs))
         summary = {
             m: {"results": str(r.results), "log": str(r.log), "fps": r.fps} for m, r in runs.items()
         }
-        if has_gt:
-            table = auc_table(dataset, runs, args.split, scenes)
+        if inp.score is not None:
+            table = inp.score(runs)
             print(table)
             atomic_write_text(out / "auc_table.txt", table + "\n")
+        else:
+            print(f"note: {inp.no_score}")
         if not args.no_plot:
             from chpf.tracking.plots import plot_scenes
 
@@ -226,6 +409,9 @@ def track(
             )
             for p in pngs:
                 print(f"plot: {p}")
+        for what, path in (("overlay", args.overlay), ("poses", args.poses)):
+            if path is not None:
+                print(f"{what}: {path}")
         atomic_write_text(out / "runs.json", json.dumps(summary, indent=1) + "\n")
         return 0
 
@@ -236,10 +422,46 @@ def tracking_config(args: argparse.Namespace) -> Any:
     return make_config(args.config, args.set, **n)
 
 
+def check_input_options(args: argparse.Namespace) -> None:
+    """ConfigError (one line) on options that do not go together."""
+    plain = [o for o in ("images", "video") if getattr(args, o) is not None]
+    given = (["demo"] if args.demo else []) + (["dataset"] if args.dataset else []) + plain
+    if len(given) > 1:
+        shown = " and ".join("--" + g for g in given)
+        raise ConfigError(f"chpf-track: give one input, not {shown}")
+    if not given:
+        raise ConfigError(
+            "chpf-track needs --bundle and an input: --dataset, --images or --video (or --demo)"
+        )
+    if not plain:
+        bad = [o for o in ("camera", "init_box", "depth", "depth_scale") if getattr(args, o)]
+        if bad:
+            shown = ", ".join("--" + b.replace("_", "-") for b in bad)
+            raise ConfigError(f"{shown}: only with --images or --video")
+        return
+    if args.bundle is None:
+        raise ConfigError(f"--{plain[0]} needs --bundle (the model bundle of the object)")
+    if args.camera is None:
+        raise ConfigError(f"--{plain[0]} needs --camera FILE (the intrinsics)")
+    if (args.init_box is None) == (args.detections is None):
+        raise ConfigError(f"--{plain[0]} needs one of --init-box x,y,w,h or --detections FILE")
+    if args.depth is not None and args.video is not None:
+        raise ConfigError("--depth goes with --images (a video has no depth frames)")
+    if args.modality == "rgbd" and args.depth is None:
+        raise ConfigError(f"--modality rgbd needs --images with --depth DIR (got --{plain[0]})")
+    if not (np.isfinite(args.fps) and args.fps > 0):
+        raise ConfigError(f"--fps must be > 0, got {args.fps}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``chpf-track``; returns the exit code."""
     args = build_parser().parse_args(argv)
+    check_input_options(args)
     args.out = check_out_dir(args.out or Path("chpf_demo" if args.demo else "chpf_track_out"))
+    if args.overlay is not None:
+        check_overlay_target(args.overlay)
+    if args.poses is not None:
+        check_out_file(args.poses)
     run_cfg = tracking_config(args).runtime
     if args.demo:
         from chpf.tracking.demo import DEMO_METHODS, demo_dataset, shipped_bundle
@@ -251,12 +473,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.detections = None
         args.split = "test"
         methods = list(DEMO_METHODS) if args.method == "chpf" else parse_methods(args.method)
-        return track(args, methods, dataset, bundle, fresh=True)  # the demo starts afresh
-    if args.bundle is None or args.dataset is None:
+        return track(  # the demo starts afresh
+            args, methods, bundle, lambda: bop_input(args, dataset, bundle), fresh=True
+        )
+    if args.bundle is None:
         raise ConfigError("chpf-track needs --bundle and --dataset (or --demo)")
     methods = parse_methods(args.method)
     bundle = Bundle.load(args.bundle, run_cfg.threads, spin=run_cfg.spin)
-    return track(args, methods, args.dataset, bundle)
+    if args.dataset is not None:
+        return track(args, methods, bundle, lambda: bop_input(args, args.dataset, bundle))
+    return track(args, methods, bundle, lambda: plain_input(args, bundle))
 
 
 cli = run_main(main)

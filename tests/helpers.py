@@ -119,3 +119,63 @@ def vocap_reference(errors, max_threshold: float = 0.1) -> float:
         if mrec[i] != mrec[i - 1]:
             ap += (mrec[i] - mrec[i - 1]) * mpre[i]
     return ap / max_threshold * 100.0
+
+
+DEMO_ROOT = Path(__file__).resolve().parents[1] / "chpf" / "assets" / "demo" / "box"
+DEMO_SCENE = DEMO_ROOT / "test" / "000001"
+DEMO_K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
+"""Intrinsics of every frame of the shipped demo sequence (320x240)."""
+
+
+def demo_frames(n: int) -> list[Path]:
+    """The first ``n`` RGB frames of the shipped demo sequence (000001.png ...)."""
+    return sorted((DEMO_SCENE / "rgb").glob("*.png"))[:n]
+
+
+def demo_box(im_id: int) -> list[float]:
+    """The demo's visible ground-truth box (x, y, w, h) of the tracked box in image ``im_id``."""
+    info = json.loads((DEMO_SCENE / "scene_gt_info.json").read_text())[str(im_id)]
+    gt = json.loads((DEMO_SCENE / "scene_gt.json").read_text())[str(im_id)]
+    k = next(i for i, g in enumerate(gt) if g["obj_id"] == 2)
+    return [float(v) for v in info[k]["bbox_visib"]]
+
+
+def write_video(path: Path, frames: list[Path], fps: float = 10.0, fourcc: str = "mp4v") -> Path:
+    """Write the image files ``frames`` as a video with OpenCV (``fourcc`` codec)."""
+    import cv2
+
+    first = cv2.imread(str(frames[0]))
+    h, w = first.shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, (w, h))
+    assert writer.isOpened(), path
+    for f in frames:
+        writer.write(cv2.imread(str(f)))
+    writer.release()
+    return path
+
+
+def count_video_frames(path: Path) -> int:
+    """Frames OpenCV decodes from a video file."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(path))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    cap.release()
+    return n
+
+
+def console_error(cli, capsys, monkeypatch, *argv) -> str:
+    """Run a console script's ``cli()`` with ``argv``; assert exit 2 with one stderr line
+    ``error: ...``; return that line."""
+    import sys
+
+    import pytest
+
+    monkeypatch.setattr(sys, "argv", ["prog", *(str(a) for a in argv)])
+    with pytest.raises(SystemExit) as exc:
+        cli()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and err[0].startswith("error: "), err
+    return err[0]

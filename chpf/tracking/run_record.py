@@ -23,31 +23,43 @@ REPORTS = ("auc_table.txt", "runs.json")
 """Files a run writes besides its per-method CSVs (and the ``plots`` folder)."""
 
 
+def file_record(path: Path | None) -> dict[str, str] | None:
+    """{"path": absolute, "sha256"} of an input file (None stays None)."""
+    if path is None:
+        return None
+    return {"path": str(Path(path).resolve()), "sha256": sha256_file(path)}
+
+
+def bop_inputs(
+    dataset: Path, split: str, scenes: list[int], detections: Path | None
+) -> dict[str, Any]:
+    """The input part of a BOP run's settings: the dataset, split and scenes and the detections
+    file (sha256; None = the dataset's or the simulated detector)."""
+    return {
+        "dataset": str(Path(dataset).resolve()),
+        "split": split,
+        "scenes": [int(s) for s in scenes],
+        "detections": file_record(detections),
+    }
+
+
 def track_settings(
     bundle: Bundle,
-    dataset: Path,
-    split: str,
-    scenes: list[int],
-    detections: Path | None,
+    inputs: dict[str, Any],
     methods: list[str],
     modality: str,
     seed: int,
     config: TrackConfig,
 ) -> dict[str, Any]:
     """Everything the outputs depend on: the bundle (manifest sha256, which covers every file),
-    the dataset, split and scenes, the detections file (sha256; None = the dataset's or the
-    simulated detector), the methods, modality, seed and the full tracking config."""
+    the inputs (``bop_inputs``, or a plain input's files and boxes), the methods, modality, seed
+    and the full tracking config."""
     return {
         "bundle": {
             "path": str(bundle.path.resolve()),
             "sha256": sha256_file(bundle.path / MANIFEST),
         },
-        "dataset": str(Path(dataset).resolve()),
-        "split": split,
-        "scenes": [int(s) for s in scenes],
-        "detections": None
-        if detections is None
-        else {"path": str(Path(detections).resolve()), "sha256": sha256_file(detections)},
+        **inputs,
         "methods": list(methods),
         "modality": modality,
         "seed": int(seed),

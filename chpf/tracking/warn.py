@@ -1,4 +1,5 @@
-"""Warnings given once per run: weight collapses, invalid detection boxes, missing depth."""
+"""Warnings given once per run: weight collapses, invalid detection boxes, missing depth,
+unreadable frames."""
 
 from __future__ import annotations
 
@@ -16,6 +17,11 @@ class InvalidBoxWarning(UserWarning):
 
 class MissingDepthWarning(UserWarning):
     """A frame of an RGB-D run had no depth image: it was tracked with RGB only."""
+
+
+class SkippedFrameWarning(UserWarning):
+    """A frame could not be read (a corrupt image, a video that ends early): it was skipped and
+    the run went on."""
 
 
 class OnceWarner:

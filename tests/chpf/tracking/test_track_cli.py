@@ -16,6 +16,7 @@ from chpf.bop import read_results_csv
 from chpf.errors import BundleError, ConfigError, DatasetError
 from chpf.track_cli import build_parser, cli, main, parse_methods, tracking_config
 from chpf.tracking.runlog import COLUMNS, read_log
+from tests.helpers import console_error
 
 FRAMES = 8
 
@@ -254,15 +255,7 @@ def test_demo_runs_chpf_chrbpf_and_two_baselines(template_bundle, tmp_path, caps
 
 
 def _cli_error(capsys, monkeypatch, *argv) -> str:
-    """Run the console script; assert exit 2 with one stderr line; return that line."""
-    import sys
-
-    monkeypatch.setattr(sys, "argv", ["chpf-track", *(str(a) for a in argv)])
-    with pytest.raises(SystemExit) as exc:
-        cli()
-    err = capsys.readouterr().err.strip().splitlines()
-    assert exc.value.code == 2 and len(err) == 1 and err[0].startswith("error: "), err
-    return err[0]
+    return console_error(cli, capsys, monkeypatch, *argv)
 
 
 def test_rerun_with_other_settings_is_refused_unless_overwrite(

@@ -1,0 +1,44 @@
+"""Build the frame source of ``chpf-track --images DIR`` / ``--video FILE`` (a "plain" input:
+frames, a camera file and at most a few boxes, no ground truth)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from chpf.sources.boxes import PlainBoxes, check_init_box, read_frame_boxes
+from chpf.sources.camera import read_camera
+from chpf.sources.images import ImageFolder
+from chpf.sources.video import VideoFile
+from chpf.tracking.types import Box
+
+
+def open_plain(
+    images: Path | None,
+    video: Path | None,
+    camera: Path,
+    obj_id: int,
+    fps: float,
+    init_box: Box | None = None,
+    detections: Path | None = None,
+    depth: Path | None = None,
+    depth_scale: float | None = None,
+) -> ImageFolder | VideoFile:
+    """The source of one of ``images`` / ``video`` with the intrinsics of ``camera`` and the
+    boxes of ``init_box`` (first frame) or ``detections`` (a CSV or BOP JSON file; the rows for
+    ``obj_id``). ``depth_scale`` (mm per depth unit) defaults to the camera file's, else 1.
+    Everything that can be checked before tracking is (SourceError / ImageSizeError naming the
+    file: sizes, counts, the init box inside the first frame)."""
+    cam = read_camera(camera)
+    boxes = PlainBoxes(
+        None if detections is None else read_frame_boxes(detections, obj_id), init_box
+    )
+    source: ImageFolder | VideoFile
+    if images is not None:
+        scale = depth_scale if depth_scale is not None else (cam.depth_scale or 1.0)
+        source = ImageFolder(images, cam, boxes, fps, depth=depth, depth_scale=scale)
+    else:
+        assert video is not None, "give images or video"
+        source = VideoFile(video, cam, boxes, fps)
+    if init_box is not None:
+        check_init_box(init_box, source.width, source.height, source.first_name)
+    return source

@@ -1,0 +1,197 @@
+"""``--overlay``: every tracked frame with the estimate drawn on it, as a video or PNGs.
+
+Each frame shows the object's outline at the estimate (the convex hull of the projected
+``chpf.tracking.model_outline`` points, green), its axes (x red, y green, z blue, half the
+diameter long), and a bar of the filter's doubt: alpha (the share reinvigorated) for the methods
+that have one, else the effective sample size over N. A frame without an estimate says so.
+A target ending in a video suffix is written with ``cv2.VideoWriter`` (mp4v) under a temporary
+name and moved into place when the run ends; any other target is a folder of
+``SCENE_FRAME.png`` files (``000001_000042.png``), each written atomically. With several
+methods each gets its own: ``NAME_METHOD.mp4`` or ``FOLDER/METHOD/``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from chpf.bop import write_rgb
+from chpf.errors import ConfigError, OutputError
+from chpf.outdir import check_out_dir, check_out_file
+from chpf.sources.frame import SourceFrame
+from chpf.tracking.run_dataset import method_tag
+from chpf.tracking.types import TrackResult
+
+VIDEO_EXTS = (".mp4", ".avi", ".mov", ".mkv")
+OUTLINE = (40, 220, 40)
+AXES = ((230, 40, 40), (40, 220, 40), (60, 100, 255))
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+ESS_BAR = (90, 160, 255)
+
+
+def check_overlay_target(path: Path) -> bool:
+    """Refuse an overlay target that cannot be written (OutputError) or is neither a video name
+    nor a folder (ConfigError); True for a video."""
+    suffix = path.suffix.lower()
+    if suffix in VIDEO_EXTS:
+        check_out_file(path)
+        return True
+    if suffix and not path.is_dir():
+        raise ConfigError(
+            f"--overlay {path}: give a video ({', '.join(VIDEO_EXTS)}) or a folder for PNGs"
+        )
+    check_out_dir(path)
+    return False
+
+
+def doubt(result: TrackResult, n_particles: int) -> tuple[float, str, bool] | None:
+    """(bar fill in [0, 1], label, is alpha): alpha when finite, else ESS / N; None when
+    neither is (a predict-only frame)."""
+    if np.isfinite(result.alpha):
+        return float(np.clip(result.alpha, 0.0, 1.0)), f"alpha {result.alpha:.2f}", True
+    if np.isfinite(result.ess):
+        fill = float(np.clip(result.ess / n_particles, 0.0, 1.0))
+        return fill, f"ESS {result.ess:.0f}/{n_particles}", False
+    return None
+
+
+def _panel(img: np.ndarray, x1: int, y1: int) -> None:
+    """Darken the top-left corner up to (x1, y1) so that the text on it reads on any frame."""
+    corner = img[:y1, :x1]
+    corner[:] = (corner * 0.35).astype(np.uint8)
+
+
+def draw_overlay(
+    rgb: np.ndarray,
+    K: np.ndarray,
+    R: np.ndarray | None,
+    t: np.ndarray | None,
+    points: np.ndarray,
+    axis_length: float,
+    title: str,
+    bar: tuple[float, str, bool] | None,
+) -> np.ndarray:
+    """A copy of ``rgb`` (H,W,3) uint8 with the pose (R (3,3), t (3,) metres; None: no
+    estimate) drawn from the object-frame ``points`` (M,3), the ``title`` and the ``bar``
+    (``doubt``'s) at the top left: alpha from green (0) to red (1), ESS in blue."""
+    img = np.ascontiguousarray(rgb).copy()
+    h, w = img.shape[:2]
+    scale = max(0.35, w / 1400.0)
+    line = max(1, round(w / 400))
+    if R is not None and t is not None:
+        cam = points @ np.asarray(R).T + np.asarray(t)
+        front = cam[cam[:, 2] > 1e-6]
+        if len(front) >= 3:
+            uv = front[:, :2] / front[:, 2:] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+            hull = cv2.convexHull(np.round(uv).astype(np.int32))
+            cv2.polylines(img, [hull], True, OUTLINE, line, cv2.LINE_AA)
+        ends = np.vstack([t, t + axis_length * np.asarray(R).T]) @ np.asarray(K).T
+        if np.all(ends[:, 2] > 1e-6):
+            px = np.round(ends[:, :2] / ends[:, 2:]).astype(np.int64)
+            for i, colour in enumerate(AXES):
+                cv2.line(img, tuple(px[0]), tuple(px[i + 1]), colour, line + 1, cv2.LINE_AA)
+    else:
+        title += "  no estimate"
+    pad = max(4, round(h / 60))
+    text_h = int(cv2.getTextSize("Ag", FONT, scale, 1)[0][1])
+    bw, bh = max(40, w // 5), max(6, h // 40)
+    label = "" if bar is None else bar[1]
+    label_w = int(cv2.getTextSize(label, FONT, scale, 1)[0][0])
+    title_w = int(cv2.getTextSize(title, FONT, scale, 1)[0][0])
+    _panel(img, min(w, 2 * pad + max(title_w, bw + pad + label_w)), min(h, 3 * pad + text_h + bh))
+    cv2.putText(img, title, (pad, pad + text_h), FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
+    if bar is not None:
+        fill, _, is_alpha = bar
+        x0, y0 = pad, 2 * pad + text_h
+        colour = (int(255 * fill), int(200 * (1.0 - fill)), 40) if is_alpha else ESS_BAR
+        cv2.rectangle(img, (x0, y0), (x0 + round(bw * fill), y0 + bh), colour, -1)
+        cv2.rectangle(img, (x0, y0), (x0 + bw, y0 + bh), (255, 255, 255), 1)
+        cv2.putText(
+            img, label, (x0 + bw + pad, y0 + bh), FONT, scale, (255, 255, 255), 1, cv2.LINE_AA
+        )
+    return img
+
+
+class OverlayWriter:
+    """A FrameSink (chpf.tracking.run_dataset) writing the overlay of each method to its target
+    (module docstring). ``points`` (M,3) and ``axis_length`` metres; ``fps`` of the video."""
+
+    def __init__(
+        self,
+        target: str | Path,
+        methods: list[str],
+        points: np.ndarray,
+        axis_length: float,
+        fps: float,
+        n_particles: dict[str, int],
+    ) -> None:
+        target = Path(target)
+        self.video = check_overlay_target(target)
+        one = len(methods) == 1
+        self.targets = {
+            m: target
+            if one
+            else (
+                target.with_name(f"{target.stem}_{method_tag(m)}{target.suffix}")
+                if self.video
+                else target / method_tag(m)
+            )
+            for m in methods
+        }
+        for path in self.targets.values():
+            check_overlay_target(path)
+        self.points = points
+        self.axis_length = float(axis_length)
+        self.fps = float(fps)
+        self.n_particles = n_particles
+        self.writers: dict[str, tuple[cv2.VideoWriter, Path, tuple[int, int]]] = {}
+        self.frames = dict.fromkeys(methods, 0)
+
+    def write(
+        self, scene_id: int, frame: SourceFrame, method: str, result: TrackResult, ms: float
+    ) -> None:
+        img = draw_overlay(
+            frame.rgb,
+            frame.K,
+            result.R if result.ok else None,
+            result.t if result.ok else None,
+            self.points,
+            self.axis_length,
+            f"{method}  frame {frame.index}",
+            doubt(result, self.n_particles[method]),
+        )
+        if self.video:
+            self._video_frame(method, img)
+        else:
+            write_rgb(self.targets[method] / f"{scene_id:06d}_{frame.index:06d}.png", img)
+        self.frames[method] += 1
+
+    def _video_frame(self, method: str, img: np.ndarray) -> None:
+        if method not in self.writers:
+            target = self.targets[method]
+            target.parent.mkdir(parents=True, exist_ok=True)
+            tmp = target.with_name(f".{target.stem}.partial{target.suffix}")
+            size = (img.shape[1], img.shape[0])
+            writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, size)
+            if not writer.isOpened():
+                raise OutputError(f"{target}: cannot write a video here (OpenCV mp4v)")
+            self.writers[method] = (writer, tmp, size)
+        writer, _, size = self.writers[method]
+        if (img.shape[1], img.shape[0]) != size:  # a scene of another size: fit to the first
+            img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+        writer.write(cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+
+    def close(self, completed: bool) -> None:
+        """Release the videos; move them into place when the run completed, else remove them."""
+        for method, (writer, tmp, _) in self.writers.items():
+            writer.release()
+            if completed:
+                os.replace(tmp, self.targets[method])
+            else:
+                tmp.unlink(missing_ok=True)
+        self.writers.clear()
