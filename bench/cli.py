@@ -2,7 +2,7 @@
 
 Usage::
 
-    chpf-bench run --out DIR [--suite default|quick|FILE.yaml] [--bundles B1,B2]
+    chpf-bench run --out DIR [--suite default|dev|quick|FILE.yaml] [--bundles B1,B2]
                    [--methods paper|a,b] [--seeds 0,1,2] [--modality rgb,rgbd] [--workers K]
                    [--shard I --num-shards M] [--cache-dir DIR] [--no-progress] [--no-report]
     chpf-bench report DIR
@@ -61,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="build the sequences, run the jobs, write the report")
     r.add_argument("--out", required=True, type=Path, help="output folder (resumable)")
-    r.add_argument("--suite", default="default", help="default | quick | a suite YAML file")
+    r.add_argument("--suite", default="default", help="default | dev | quick | a suite YAML file")
     r.add_argument("--bundles", type=_items, help="bundle folders (shipped: the shipped ones)")
     r.add_argument("--methods", type=_items, help="registered methods or paper")
     r.add_argument("--seeds", type=_items, help="filter seeds, e.g. 0,1,2")

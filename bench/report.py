@@ -22,6 +22,8 @@ import numpy as np
 from bench.runner import SUMMARY
 from bench.sequences import SEQUENCES_FILE, sequences_from_json
 from bench.stats import (
+    HIDDEN_BELOW,
+    LOST_ABOVE,
     OCCLUDED_BELOW,
     TRACKED_BELOW,
     Estimate,
@@ -132,6 +134,61 @@ class Figures:
             "unrecovered": unrecovered,
             "fps": 1000.0 * frames / ms if ms > 0 else float("nan"),
         }
+
+    def alpha_by_state(self, method: str, modality: str) -> dict[str, tuple[float, ...]]:
+        """Mean alpha per frame state (ALPHA_STATES): (mean over seeds of each seed's mean,
+        lowest and highest seed mean, frames over all seeds); nan where none or no alpha."""
+        per_seed: dict[str, list[float]] = defaultdict(list)
+        frames: dict[str, int] = defaultdict(int)
+        for sd in self.seeds:
+            sums: dict[str, list[np.ndarray]] = defaultdict(list)
+            for by_seed in self.by_cell[(method, modality)].values():
+                s = by_seed.get(sd)
+                if s is None:
+                    continue
+                for state, sel in frame_states(s).items():
+                    a = s["alpha"][sel]
+                    sums[state].append(a[np.isfinite(a)])
+            for state in ALPHA_STATES:
+                a = np.concatenate(sums[state]) if sums[state] else np.empty(0)
+                frames[state] += a.size
+                if a.size:
+                    per_seed[state].append(float(a.mean()))
+        nan = float("nan")
+        return {
+            k: (float(np.mean(v)), min(v), max(v), frames[k])
+            if (v := per_seed[k])
+            else (nan, nan, nan, 0)
+            for k in ALPHA_STATES
+        }
+
+
+ALPHA_STATES = ("tracked", "lost", "occluded tracked", "hidden tracked")
+"""Frame states of the alpha table: ADD-S < TRACKED_BELOW d; > LOST_ABOVE d; tracked with less
+than OCCLUDED_BELOW of the target visible; tracked with less than HIDDEN_BELOW visible."""
+
+
+def frame_states(s: dict[str, Any]) -> dict[str, np.ndarray]:
+    """Boolean frame masks (n,) of a job summary for each of ALPHA_STATES."""
+    tracked = s["adds"] < TRACKED_BELOW * s["diameter"]
+    return {
+        "tracked": tracked,
+        "lost": s["adds"] > LOST_ABOVE * s["diameter"],
+        "occluded tracked": tracked & (s["visib"] < OCCLUDED_BELOW),
+        "hidden tracked": tracked & (s["visib"] < HIDDEN_BELOW),
+    }
+
+
+def alpha_table(fig: Figures, alpha: dict) -> str:
+    """Markdown: mean alpha by frame state for the methods that report one."""
+    head = ["method", "modality", *ALPHA_STATES]
+    rows = []
+    for (m, mod), by_state in alpha.items():
+        cells = [
+            f"{v:.2f} ({lo:.2f}-{hi:.2f}; {n})" if n else "-" for v, lo, hi, n in by_state.values()
+        ]
+        rows.append([m, mod, *cells])
+    return md_table(head, rows)
 
 
 def md_table(head: list[str], rows: list[list[str]]) -> str:
@@ -396,11 +453,26 @@ def write_report(out: Path) -> Path:
         for (m, mod), t in track.items()
     ]
     atomic_write_text(rep / "tracking.csv", csv_text(trows, thead))
+    alpha = {
+        key: by_state
+        for m in fig.methods
+        for mod in fig.modalities
+        for key in [(m, mod)]
+        if (by_state := fig.alpha_by_state(m, mod)) and any(v[3] for v in by_state.values())
+    }
+    ahead = ["method", "modality", "state", "alpha", "seed_lo", "seed_hi", "frames"]
+    arows = [
+        [m, mod, state, *(round(x, 4) for x in v[:3]), v[3]]
+        for (m, mod), by_state in alpha.items()
+        for state, v in by_state.items()
+    ]
+    atomic_write_text(rep / "alpha.csv", csv_text(arows, ahead))
     doc = {
         "suite": suite,
         "jobs_done": len(summaries),
         "auc": [dict(zip(head, r, strict=True)) for r in rows],
         "tracking": [dict(zip(thead, r, strict=True)) for r in trows],
+        "alpha": [dict(zip(ahead, r, strict=True)) for r in arows],
     }
     atomic_write_text(rep / "report.json", json.dumps(doc, indent=1) + "\n")
 
@@ -421,12 +493,12 @@ def write_report(out: Path) -> Path:
     for name, data in pngs.items():
         atomic_write_bytes(rep / name, data)
 
-    md = _markdown(suite, fig, auc, track, len(summaries), len(seqs), pngs, out)
+    md = _markdown(suite, fig, auc, track, alpha, len(summaries), len(seqs), pngs, out)
     atomic_write_text(rep / "report.md", md)
     return rep / "report.md"
 
 
-def _markdown(suite, fig, auc, track, n_done, n_seqs, pngs, out) -> str:
+def _markdown(suite, fig, auc, track, alpha, n_done, n_seqs, pngs, out) -> str:
     sq = suite["sequences"]
     n_jobs = n_seqs * len(suite["methods"]) * len(suite["modalities"]) * len(suite["seeds"])
     timings = out / TIMINGS_FILE
@@ -471,6 +543,19 @@ def _markdown(suite, fig, auc, track, n_done, n_seqs, pngs, out) -> str:
         lines += [f"Warnings of the runs (recorded in each job's summary.json): {counts}.", ""]
     lines += ["## All sequences", "", headline_table(fig, auc, track), ""]
     lines += ["## Per occlusion level", "", level_table(fig, auc), ""]
+    if alpha:
+        lines += [
+            "## Doubt: alpha by frame state",
+            "",
+            "Mean alpha (the share of particles reinvigorated) over the frames of each state, "
+            "the mean of the seeds' means (lowest-highest seed; frames over all seeds): "
+            f"*tracked* ADD-S < {TRACKED_BELOW} d, *lost* > {LOST_ABOVE} d, *occluded "
+            f"tracked* tracked with < {int(100 * OCCLUDED_BELOW)} % visible, *hidden tracked* "
+            f"tracked with < {int(100 * HIDDEN_BELOW)} % visible.",
+            "",
+            alpha_table(fig, alpha),
+            "",
+        ]
     lines += ["## Figures", ""]
     captions = {
         "auc_by_level.png": "ADD-S AUC by occlusion level (bars: 95 % intervals)",
@@ -480,5 +565,5 @@ def _markdown(suite, fig, auc, track, n_done, n_seqs, pngs, out) -> str:
     for name in pngs:
         cap = captions.get(name, f"error and alpha over time, {name[9:-4]}")
         lines += [f"![{cap}]({name})", "", f"*{cap}*", ""]
-    lines += ["Tables: `auc.csv`, `tracking.csv`, `report.json`."]
+    lines += ["Tables: `auc.csv`, `tracking.csv`, `alpha.csv`, `report.json`."]
     return "\n".join(lines) + "\n"

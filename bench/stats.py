@@ -20,6 +20,10 @@ OCCLUDED_BELOW = 0.75
 """A frame is occluded when less than this fraction of the target is visible (visib_fract)."""
 TRACKED_BELOW = 0.1
 """A frame is tracked when its ADD-S error is below this fraction of the diameter."""
+LOST_ABOVE = 0.5
+"""A frame is lost when its ADD-S error is above this fraction of the diameter."""
+HIDDEN_BELOW = 0.3
+"""A frame is mostly hidden when less than this fraction of the target is visible."""
 
 Statistic = Callable[[np.ndarray, np.ndarray], float]
 """(errors (n,) m, diameters (n,) m) -> a figure."""

@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from chpf.config_schema import to_dict
 from chpf.errors import ConfigError, DatasetError
 from data_gen.config import default_config
+from training.batch_augment import BatchAugment, augment_batch
 from training.checkpoints import (
     CHECKPOINT_FORMAT_VERSION,
     checkpoint_info,
@@ -50,6 +51,7 @@ from training.models import Autoencoder, CHClassifier, Preprocess
 DEFAULT_ENCODER = EncoderConfig()
 DEFAULT_CLASSIFIER = ClassifierConfig()
 NO_MIX = PairsMix()
+NO_AUGMENT = BatchAugment()
 
 # ----------------------------------------------------------------------------- shared pieces
 
@@ -514,6 +516,8 @@ class CHLitModule(_ChpfModule):
         encoder_lr_scale: encoder learning rate = ``lr * encoder_lr_scale`` (when trained).
         weight_decay, warmup_steps, min_lr_ratio, channels_last: as in ``AELitModule``.
         input_jitter: extra colour jitter on the observed crops, 0 = off.
+        augment: occluders and appearance changes drawn onto the observed crops
+            (``training.batch_augment.BatchAugment``; off by default).
         hard_negative_deg: [lo, hi] angle range (degrees) of the hard negatives for val/auc_hard.
         occluded_visib: [lo, hi] visible fraction of the occluded positives for
             val/aligned_rate_occluded (share of them called aligned, p < 0.5).
@@ -557,6 +561,7 @@ class CHLitModule(_ChpfModule):
         candidate_codebook: str | None = None,
         extra_pairs_mix: PairsMix = NO_MIX,
         candidate_refresh_steps: int = 0,
+        augment: BatchAugment = NO_AUGMENT,
     ) -> None:
         super().__init__(locals())
         if occluded_pos_weight <= 0 or hard_neg_weight <= 0:
@@ -577,6 +582,8 @@ class CHLitModule(_ChpfModule):
                 "candidate_refresh_steps"
             )
         self.extra_pairs_mix = extra_pairs_mix
+        self.augment = augment
+        self._augment_rng = np.random.default_rng(0)
         cfg = classifier
         self.ae_info: dict[str, Any] | None = None
         for key, on in (("freeze_encoder", freeze_encoder), ("freeze_candidate", freeze_candidate)):
@@ -666,6 +673,7 @@ class CHLitModule(_ChpfModule):
         obs = self._images(batch, "obs_rgb")
         if train:
             obs = jitter_colors(obs, float(self.hparams.input_jitter))
+            obs = augment_batch(obs, self.augment, self._augment_rng)
         y = 1.0 - batch["aligned"].float()
         if train and self._candidates is not None and self.hparams.freeze_candidate:
             # the frozen candidate views' embeddings are known exactly
@@ -714,7 +722,9 @@ class CHLitModule(_ChpfModule):
 
     def on_train_start(self) -> None:
         """With ``extra_pairs``: embed the candidate codebook with the (restored)
-        candidate branch, and seed the draws from the run's seed and the rank."""
+        candidate branch, and seed the draws (extra pairs, augmentation) from the run's seed
+        and the rank."""
+        self._augment_rng = np.random.default_rng([torch.initial_seed(), self.global_rank, 1])
         if not self.hparams.extra_pairs:
             return
         cb = load_codebook_npz(self.hparams.candidate_codebook, self._model_size())

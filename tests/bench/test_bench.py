@@ -76,6 +76,7 @@ def test_quick_suite_report_is_scored_as_computed_by_hand(quick: Path) -> None:
         "report.md",
         "auc.csv",
         "tracking.csv",
+        "alpha.csv",
         "report.json",
         "auc_by_level.png",
         "curves.png",
@@ -85,6 +86,7 @@ def test_quick_suite_report_is_scored_as_computed_by_hand(quick: Path) -> None:
     assert list(rep.glob("sequence_*.png"))
     md = (rep / "report.md").read_text()
     assert "| chpf | rgb |" in md and "| srl | rgbd |" in md
+    assert "## Doubt: alpha by frame state" in md
     suite = json.loads((quick / "suite.json").read_text())
     jobs = sorted((quick / "jobs").iterdir())
     levels = len(suite["sequences"]["occlusion"])
@@ -271,5 +273,59 @@ def test_likelihoods_at_the_truth_by_visible_fraction(quick: Path, tmp_path: Pat
     top = next(r for r in rows if r["band"] == "90%-100%")
     assert int(top["frames"]) == sum(v >= 0.9 for v in visible)
     assert float(top["mean_C"]) < 0.5 and float(top["aligned_pct"]) > 50.0
+    assert float(top["mean_C_near"]) < 0.5  # a few degrees and millimetres off: still aligned
     with pytest.raises(OutputError, match="not a chpf-bench run folder"):
         _main("likelihoods", str(tmp_path))
+
+
+def test_alpha_by_frame_state_averages_each_seeds_mean() -> None:
+    """The report's alpha table: per state, the mean of the seeds' means over the frames of
+    that state (tracked < 0.1 d, lost > 0.5 d, occluded / hidden and tracked)."""
+    from bench.report import Figures
+
+    d = 0.2
+
+    def summary(seed: int, adds: list[float], visib: list[float], alpha: list[float]) -> dict:
+        return {
+            "method": "chpf",
+            "modality": "rgb",
+            "sequence": "s1",
+            "seed": seed,
+            "level": "heavy",
+            "diameter": d,
+            "adds": np.array(adds),
+            "visib": np.array(visib),
+            "alpha": np.array(alpha),
+        }
+
+    suite = {
+        "methods": ["chpf"],
+        "modalities": ["rgb"],
+        "sequences": {"occlusion": ["heavy"]},
+        "seeds": [0, 1],
+        "report": {"bootstrap": 10},
+    }
+    s0 = summary(0, [0.01, 0.01, 0.5, 0.01], [1.0, 0.5, 0.5, 0.2], [0.1, 0.3, 0.9, np.nan])
+    s1 = summary(1, [0.01, 0.2, np.inf, 0.01], [1.0, 1.0, 0.5, 0.6], [0.2, 0.5, 0.7, 0.4])
+    got = Figures(suite, [s0, s1]).alpha_by_state("chpf", "rgb")
+    assert got["tracked"] == pytest.approx((0.25, 0.2, 0.3, 4))  # seed 0: (0.1+0.3)/2, seed 1: 0.3
+    assert got["lost"] == pytest.approx((0.75, 0.6, 0.9, 3))  # 0.9; (0.5 + 0.7) / 2
+    assert got["occluded tracked"] == pytest.approx((0.35, 0.3, 0.4, 2))
+    assert got["hidden tracked"][3] == 0  # its only frame has no alpha
+
+
+def test_near_poses_lie_within_a_tenth_of_the_diameter() -> None:
+    """The poses `likelihoods` scores near the truth are off it, and within 0.1 d by ADD."""
+    from bench.likelihoods import NEAR, near_poses
+    from chpf.geometry import random_rotations
+    from chpf.metrics import add
+
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-0.1, 0.1, (500, 3))
+    d = float(np.max(np.linalg.norm(pts[:, None] - pts[None], axis=2)))
+    for R in random_rotations(5, rng):
+        t = np.array([0.05, -0.02, 0.8])
+        Rn, tn = near_poses(R, t, d, rng)
+        assert Rn.shape == (NEAR, 3, 3) and tn.shape == (NEAR, 3)
+        errs = [add(pts, Rn[i], tn[i], R, t) for i in range(NEAR)]
+        assert 0.0 < min(errs) and max(errs) < 0.1 * d
