@@ -82,7 +82,7 @@ class LikelihoodConfig(Section):
     depth_margin: float = setting(0.03, ge=0.0)
     c_depth_margin: float = setting(0.02, ge=0.0)
     depth_no_data: float = setting(0.5, ge=0.0, le=1.0)
-    refine_neighbours: int = setting(0, ge=0)
+    refine_neighbours: int = setting(12, ge=0)
 
 
 @dataclass

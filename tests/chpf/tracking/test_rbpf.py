@@ -159,7 +159,7 @@ def test_chrbpf_converges_and_its_alpha_is_chpfs_rule_over_its_particles(sequenc
     cos = oracle.codebook_scores(frame, filt.t).cos[np.arange(50), k]
     C = oracle.codebook_scores(frame, filt.t).misaligned(k)
     W = weighed.weights.W
-    e_c, e_l = W @ C, W @ np.clip(cos, 0, None) ** 4
+    e_c, e_l = W @ C, W @ np.clip(cos, 0, None) ** CHPFConfig().l_power
     assert weighed.alpha == pytest.approx(e_c / (e_c + e_l))
     assert weighed.sum_C == pytest.approx(C.sum())
 
