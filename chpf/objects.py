@@ -21,6 +21,7 @@ id     name    shape                                                            
 from __future__ import annotations
 
 import hashlib
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -152,14 +153,22 @@ def _one_line(err: BaseException) -> str:
     return f"{type(err).__name__}: {text}" if text else type(err).__name__
 
 
+def bop_obj_id(path: str | Path) -> int | None:
+    """The obj_id in a mesh file named as BOP names models (``obj_000005.ply``,
+    ``obj_000005_textured.obj`` -> 5), None for any other name."""
+    found = re.fullmatch(r"obj_(\d+)(?:_.*)?", Path(path).stem)
+    return int(found.group(1)) if found else None
+
+
 def load_mesh(
     path: str | Path,
     unit: str = "m",
     name: str | None = None,
-    obj_id: int = 0,
+    obj_id: int | None = None,
     num_points: int = DEFAULT_NUM_POINTS,
 ) -> ObjectModel:
-    """Load a .ply / .obj / .stl mesh; ``unit`` is the file's length unit (``MESH_UNITS``).
+    """Load a .ply / .obj / .stl mesh; ``unit`` is the file's length unit (``MESH_UNITS``);
+    ``obj_id`` None = the one in a BOP model name (``bop_obj_id``), else 0.
 
     Scenes (several geometries) are concatenated. The origin is kept as in the file.
     Raises MeshError (one line naming the file) if the file is missing, unreadable, or has no
@@ -188,6 +197,8 @@ def load_mesh(
         raise MeshError(f"{p}: mesh has non-finite vertex coordinates")
     if unit != "m":
         loaded.apply_scale(MESH_UNITS[unit])
+    if obj_id is None:
+        obj_id = bop_obj_id(p) or 0
     return make_object(loaded, name or p.stem, obj_id=obj_id, num_points=num_points)
 
 
