@@ -50,7 +50,9 @@ class ObjectModel:
     ``points`` (M, 3) are model points for the metrics (a seeded area-uniform surface sample,
     M <= 2000 by default). ``symmetries_discrete``: list of (4, 4) object-frame transforms
     (translation in metres); ``symmetries_continuous``: list of ``{"axis": (3,), "offset": (3,)}``
-    (offset in metres), as in BOP ``models_info.json``. Compared by identity.
+    (offset in metres), as in BOP ``models_info.json``. ``source`` and ``unit``: the mesh file
+    and its unit (``load_mesh``), so that data made from it can find it again. Compared by
+    identity.
     """
 
     name: str
@@ -60,6 +62,8 @@ class ObjectModel:
     symmetries_discrete: list[np.ndarray] = field(default_factory=list)
     symmetries_continuous: list[dict[str, np.ndarray]] = field(default_factory=list)
     obj_id: int = 0
+    source: str | None = None  # the mesh file (absolute path) it was loaded from; None: built-in
+    unit: str = "m"  # that file's length unit
 
     @property
     def num_triangles(self) -> int:
@@ -199,7 +203,9 @@ def load_mesh(
         loaded.apply_scale(MESH_UNITS[unit])
     if obj_id is None:
         obj_id = bop_obj_id(p) or 0
-    return make_object(loaded, name or p.stem, obj_id=obj_id, num_points=num_points)
+    obj = make_object(loaded, name or p.stem, obj_id=obj_id, num_points=num_points)
+    obj.source, obj.unit = str(p.resolve()), unit
+    return obj
 
 
 def object_fingerprint(obj: ObjectModel) -> str:
