@@ -280,25 +280,29 @@ class Bundle:
         return cls(root, manifest, spec, obj_info, codebook, ae, ch, head)
 
     # ------------------------------------------------------------------ data
-    def check_dataset(self, dataset: BopDataset, tol: float = DIAMETER_TOL) -> None:
-        """Refuse (BundleError naming both) a dataset whose object with this bundle's obj_id is
-        another object: its ``models_info.json`` diameter differs from the manifest's by more
-        than ``tol`` (relative), or the mesh fingerprint that ``chpf-gen-data`` recorded in its
-        ``sequences_info.json`` differs from the manifest's. Nothing recorded: nothing to check.
+    def check_dataset(
+        self, dataset: BopDataset, obj_id: int | None = None, tol: float = DIAMETER_TOL
+    ) -> None:
+        """Refuse (BundleError naming both) a dataset whose object ``obj_id`` (None = this
+        bundle's obj_id) is another object: its ``models_info.json`` diameter differs from the
+        manifest's by more than ``tol`` (relative), or the mesh fingerprint that
+        ``chpf-gen-data`` recorded in its ``sequences_info.json`` differs from the manifest's.
+        Nothing recorded: nothing to check.
         """
         obj = self.obj_info
+        oid = obj.obj_id if obj_id is None else int(obj_id)
         mine = f"the bundle's object {obj.name!r} ({self.path / MANIFEST})"
-        info = dataset.models_info().get(obj.obj_id) if dataset.models_info_path.is_file() else None
+        info = dataset.models_info().get(oid) if dataset.models_info_path.is_file() else None
         if info is not None and abs(info.diameter - obj.diameter) > tol * obj.diameter:
             raise BundleError(
-                f"{dataset.models_info_path}: obj_id {obj.obj_id} has diameter "
+                f"{dataset.models_info_path}: obj_id {oid} has diameter "
                 f"{info.diameter * 1000:.1f} mm but {mine} has {obj.diameter * 1000:.1f} mm "
                 f"(more than {tol:.0%} apart): another object; track it with its own bundle"
             )
-        recorded = dataset.recorded_fingerprints().get(obj.obj_id)
+        recorded = dataset.recorded_fingerprints().get(oid)
         if recorded and obj.fingerprint and recorded != obj.fingerprint:
             raise BundleError(
-                f"{dataset.sequences_info_path}: obj_id {obj.obj_id} has mesh fingerprint "
+                f"{dataset.sequences_info_path}: obj_id {oid} has mesh fingerprint "
                 f"{recorded[:10]} but {mine} has {obj.fingerprint[:10]}: another mesh; track it "
                 "with its own bundle"
             )

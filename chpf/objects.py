@@ -21,6 +21,7 @@ id     name    shape                                                            
 from __future__ import annotations
 
 import hashlib
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,7 +50,9 @@ class ObjectModel:
     ``points`` (M, 3) are model points for the metrics (a seeded area-uniform surface sample,
     M <= 2000 by default). ``symmetries_discrete``: list of (4, 4) object-frame transforms
     (translation in metres); ``symmetries_continuous``: list of ``{"axis": (3,), "offset": (3,)}``
-    (offset in metres), as in BOP ``models_info.json``. Compared by identity.
+    (offset in metres), as in BOP ``models_info.json``. ``source`` and ``unit``: the mesh file
+    and its unit (``load_mesh``), so that data made from it can find it again. Compared by
+    identity.
     """
 
     name: str
@@ -59,6 +62,8 @@ class ObjectModel:
     symmetries_discrete: list[np.ndarray] = field(default_factory=list)
     symmetries_continuous: list[dict[str, np.ndarray]] = field(default_factory=list)
     obj_id: int = 0
+    source: str | None = None  # the mesh file (absolute path) it was loaded from; None: built-in
+    unit: str = "m"  # that file's length unit
 
     @property
     def num_triangles(self) -> int:
@@ -152,14 +157,22 @@ def _one_line(err: BaseException) -> str:
     return f"{type(err).__name__}: {text}" if text else type(err).__name__
 
 
+def bop_obj_id(path: str | Path) -> int | None:
+    """The obj_id in a mesh file named as BOP names models (``obj_000005.ply``,
+    ``obj_000005_textured.obj`` -> 5), None for any other name."""
+    found = re.fullmatch(r"obj_(\d+)(?:_.*)?", Path(path).stem)
+    return int(found.group(1)) if found else None
+
+
 def load_mesh(
     path: str | Path,
     unit: str = "m",
     name: str | None = None,
-    obj_id: int = 0,
+    obj_id: int | None = None,
     num_points: int = DEFAULT_NUM_POINTS,
 ) -> ObjectModel:
-    """Load a .ply / .obj / .stl mesh; ``unit`` is the file's length unit (``MESH_UNITS``).
+    """Load a .ply / .obj / .stl mesh; ``unit`` is the file's length unit (``MESH_UNITS``);
+    ``obj_id`` None = the one in a BOP model name (``bop_obj_id``), else 0.
 
     Scenes (several geometries) are concatenated. The origin is kept as in the file.
     Raises MeshError (one line naming the file) if the file is missing, unreadable, or has no
@@ -188,7 +201,11 @@ def load_mesh(
         raise MeshError(f"{p}: mesh has non-finite vertex coordinates")
     if unit != "m":
         loaded.apply_scale(MESH_UNITS[unit])
-    return make_object(loaded, name or p.stem, obj_id=obj_id, num_points=num_points)
+    if obj_id is None:
+        obj_id = bop_obj_id(p) or 0
+    obj = make_object(loaded, name or p.stem, obj_id=obj_id, num_points=num_points)
+    obj.source, obj.unit = str(p.resolve()), unit
+    return obj
 
 
 def object_fingerprint(obj: ObjectModel) -> str:

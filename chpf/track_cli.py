@@ -90,6 +90,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--bundle", type=Path, help="model bundle folder (default for --demo: shipped)")
     p.add_argument("--dataset", type=Path, help="BOP dataset root")
+    p.add_argument(
+        "--obj-id",
+        type=int,
+        default=None,
+        help="the dataset's obj_id of the bundle's object (default: the bundle's own)",
+    )
     p.add_argument("--split", default="test", help="split folder (default: test)")
     p.add_argument("--scenes", type=scene_list, default=None, help="e.g. 48,49 (default: all)")
     p.add_argument(
@@ -236,6 +242,11 @@ def stage_table(runs: dict[str, MethodRun]) -> str:
     return "\n".join(lines)
 
 
+def target_obj_id(args: argparse.Namespace, bundle: Bundle) -> int:
+    """The obj_id tracked: --obj-id, else the bundle's own."""
+    return bundle.obj_info.obj_id if args.obj_id is None else int(args.obj_id)
+
+
 def bop_input(args: argparse.Namespace, dataset: Path, bundle: Bundle) -> TrackInput:
     """The TrackInput of a BOP dataset (--dataset, --demo): its scenes, boxes, ground truth."""
     ds = BopDataset(dataset)
@@ -246,14 +257,16 @@ def bop_input(args: argparse.Namespace, dataset: Path, bundle: Bundle) -> TrackI
             raise DatasetError(f"{ds.split_path(args.split)}: no scene(s) {missing}")
         scenes = [s for s in scenes if s in set(args.scenes)]
     boxes = make_box_source(ds, args.split, args.detections, args.seed)
-    obj_id = bundle.obj_info.obj_id
+    obj_id = target_obj_id(args, bundle)
     ids = _dataset_obj_ids(ds, args.split, scenes)
     if ids and obj_id not in ids:
+        what = f"obj_id {obj_id}" + ("" if args.obj_id is None else " by --obj-id")
         raise BundleError(
-            f"{bundle.path}: bundle is for object {bundle.obj_info.name!r} (obj_id {obj_id}) but "
-            f"{dataset} has obj_ids {sorted(ids)}"
+            f"{bundle.path}: bundle is for object {bundle.obj_info.name!r} ({what}) but "
+            f"{dataset} has obj_ids {sorted(ids)}; pass --obj-id N to track the dataset's "
+            "object N with it"
         )
-    bundle.check_dataset(ds)
+    bundle.check_dataset(ds, obj_id)
     points, score = None, None
     if any(ds.scene(args.split, s).gt for s in scenes):
         try:
@@ -291,7 +304,7 @@ def plain_input(args: argparse.Namespace, bundle: Bundle) -> TrackInput:
         args.images,
         args.video,
         args.camera,
-        bundle.obj_info.obj_id,
+        target_obj_id(args, bundle),
         args.fps,
         init_box=args.init_box,
         detections=args.detections,
@@ -343,7 +356,7 @@ def make_sinks(
     if args.poses is not None:
         from chpf.tracking.pose_stream import PoseStream
 
-        sinks.append(PoseStream(args.poses, bundle.obj_info.obj_id, bundle.obj_info.name))
+        sinks.append(PoseStream(args.poses, target_obj_id(args, bundle), bundle.obj_info.name))
     return sinks
 
 
@@ -360,7 +373,7 @@ def track(
     ``--out`` is locked while the run writes; its recorded settings must match this run's (see
     chpf.tracking.run_record) unless ``--overwrite``; ``fresh`` clears its outputs first."""
     inp = make_input()
-    obj_id = bundle.obj_info.obj_id
+    obj_id = target_obj_id(args, bundle)
     cfg = tracking_config(args)
     trackers = {
         m: Tracker(bundle, method=m, modality=args.modality, seed=args.seed, config=cfg)

@@ -114,6 +114,7 @@ def manifest_for(ctx: ComposerContext, n: int, seed: int) -> dict:
                 {k: np.asarray(v).tolist() for k, v in s.items()} for s in obj.symmetries_continuous
             ],
         },
+        "object_source": {"path": obj.source, "unit": obj.unit},
         "window_size": int(np.ceil(cfg["obs_pool"]["margin"] * ctx.spec.size - 1e-9)),
     }
     if ctx.kind == "pairs":

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from chpf.atomic import atomic_write_text
-from chpf.errors import DatasetError
+from chpf.errors import DatasetError, MeshError
 from chpf.outdir import differing_keys
 
 FORMAT_VERSION = 1
@@ -155,6 +155,39 @@ IDENTITY_KEYS = (
     "samples_per_shard",
     "num_samples",
 )
+
+
+def manifest_object(data_dir: str | Path, override: str | None = None, unit: str | None = None):
+    """The ObjectModel a data folder was made from: ``override`` (built-in name or mesh path,
+    in ``unit``) if given, else the mesh file its manifest records (``object_source``, made by
+    this version on) or the built-in it names. DatasetError (one line, naming the manifest and
+    ``--object MESH``) when that file has moved or the object's fingerprint differs from the
+    manifest's."""
+    from chpf.objects import get_object, object_fingerprint
+
+    path = Path(data_dir) / MANIFEST
+    man = read_manifest(data_dir)
+    source = man.get("object_source") or {}
+    name = override or source.get("path") or man.get("object")
+    if override is None and source.get("path") and not Path(source["path"]).is_file():
+        raise DatasetError(
+            f"{path}: made from the mesh {source['path']}, which is not there any more; pass "
+            "--object MESH (and --unit) with the mesh chpf-gen-data used"
+        )
+    obj_unit = unit or (source.get("unit") if override is None else None) or "m"
+    try:
+        obj = get_object(str(name), unit=obj_unit, allow_size=True)  # chpf-gen-data checked it
+    except MeshError as err:
+        raise DatasetError(
+            f"{path}: {err}; pass --object MESH with the mesh chpf-gen-data used"
+        ) from None
+    fp = man.get("object_fingerprint")
+    if fp and object_fingerprint(obj) != fp:
+        raise DatasetError(
+            f"{path}: made for another object than '{name}' (fingerprints differ); pass "
+            "--object MESH with the mesh chpf-gen-data used"
+        )
+    return obj
 
 
 def read_manifest(out_dir: str | Path) -> dict:

@@ -40,6 +40,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cache-dir", help="render pool cache folder (default: data_gen's)")
     p.add_argument("--unit", choices=list(MESH_UNITS), help="unit of a mesh file (default m)")
     p.add_argument(
+        "--obj-id",
+        type=int,
+        help="the bundle's dataset obj_id (default: from a BOP model name such as "
+        "obj_000005.ply, a built-in's own, else 0)",
+    )
+    p.add_argument(
         "--allow-size",
         action="store_true",
         help="accept a mesh whose diameter is outside 1 cm - 2 m (default: refuse)",
@@ -71,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         "workers": args.workers,
         "cache_dir": args.cache_dir,
         "unit": args.unit,
+        "obj_id": args.obj_id,
     }
     flags = {k: v for k, v in overrides.items() if v is not None}
     cfg = load(ExportConfig, data=flags, base=cfg, where="command line")
@@ -89,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     m = res.manifest
     worst = max(res.parity.values())
     print(
-        f"wrote {res.out}: object {m['object']['name']}, S={m['crop']['size']}, "
+        f"wrote {res.out}: object {m['object']['name']} (obj_id {m['object']['obj_id']}), "
+        f"S={m['crop']['size']}, "
         f"E={m['embedding_dim']}, K={m['codebook_size']}, "
         f"shared encoder={m['ch_shares_ae_encoder']}, parity max |diff| {worst:.2e}, "
         f"{time.perf_counter() - t0:.1f} s"

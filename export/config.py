@@ -26,6 +26,8 @@ class ExportConfig(Section):
     workers: render processes for the codebook pool (used when it is not cached yet).
     cache_dir: render-pool cache folder (None = data_gen's default).
     unit: unit of a mesh file given as --object ("m", "cm" or "mm").
+    obj_id: the bundle's dataset object id (None = the object's own: a built-in's, the one in
+    a BOP model file name such as obj_000005.ply, else 0).
     """
 
     codebook_size: int = setting(DEFAULT_CODEBOOK_SIZE, ge=1)
@@ -37,6 +39,7 @@ class ExportConfig(Section):
     workers: int = setting(2, ge=1)
     cache_dir: str | None = None
     unit: Literal["m", "cm", "mm"] = "m"
+    obj_id: int | None = setting(None, ge=0)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "export config") -> ExportConfig:

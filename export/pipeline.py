@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -156,6 +156,8 @@ def export_bundle(
         if isinstance(obj, ObjectModel)
         else get_object(str(obj), unit=cfg.unit, allow_size=allow_size)
     )
+    if cfg.obj_id is not None:
+        model = replace(model, obj_id=int(cfg.obj_id))
     check_out(out, model.name, overwrite)
     ae, ae_info = load_autoencoder(ae_path)
     ch, ch_info = load_classifier(ch_path)

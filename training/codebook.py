@@ -16,14 +16,12 @@ from __future__ import annotations
 
 import argparse
 import os
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from chpf.atomic import atomic_save_npz
 from chpf.console import run_main
-from chpf.errors import DatasetError
 from chpf.objects import MESH_UNITS
 
 
@@ -31,30 +29,23 @@ def render_eval_codebook(
     data_dir: str | os.PathLike,
     k: int,
     object_name: str | None = None,
-    unit: str = "m",
+    unit: str | None = None,
     cache_dir: str | None = None,
     workers: int = 1,
     progress: bool = True,
 ) -> dict[str, np.ndarray]:
     """Codebook arrays (see module docstring) for the object and crop spec of ``data_dir``.
 
-    ``object_name`` (built-in name or mesh path) overrides the manifest's object name; its
-    fingerprint must match the manifest's (DatasetError otherwise).
+    The object is the one the data was made from (``data_gen.shards.manifest_object``);
+    ``object_name`` (built-in name or mesh path, in ``unit``) overrides it and must have the
+    manifest's fingerprint (DatasetError otherwise).
     """
     from chpf.crops import CropSpec
-    from chpf.objects import get_object, object_fingerprint
     from data_gen.pool import codebook_pool
-    from data_gen.shards import read_manifest
+    from data_gen.shards import manifest_object, read_manifest
 
     man = read_manifest(data_dir)
-    name = object_name or man.get("object")
-    obj = get_object(str(name), unit=unit, allow_size=True)  # size decided by chpf-gen-data
-    fp = man.get("object_fingerprint")
-    if fp and object_fingerprint(obj) != fp:
-        raise DatasetError(
-            f"{Path(data_dir) / 'manifest.json'}: made for another object than '{name}' "
-            "(fingerprints differ); pass --object with the mesh used by chpf-gen-data"
-        )
+    obj = manifest_object(data_dir, object_name, unit)
     spec = CropSpec.from_dict(man["crop"])
     grid, crops = codebook_pool(obj, spec, int(k), cache_dir, workers=workers, progress=progress)
     return codebook_arrays(
@@ -96,7 +87,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--k", type=int, default=4096, help="codebook size (uniform SO(3) grid)")
     p.add_argument("--out", required=True, help="output .npz")
     p.add_argument("--object", default=None, help="built-in name or mesh (default: manifest's)")
-    p.add_argument("--unit", default="m", choices=list(MESH_UNITS), help="mesh file unit")
+    p.add_argument(
+        "--unit", default=None, choices=list(MESH_UNITS), help="--object's unit (default m)"
+    )
     p.add_argument("--cache-dir", default=None, help="data_gen pool cache folder")
     p.add_argument("--workers", type=int, default=1)
     a = p.parse_args(argv)

@@ -36,6 +36,7 @@ import torch.nn.functional as F
 from chpf.atomic import atomic_write_text
 from chpf.console import run_main
 from chpf.errors import ConfigError
+from chpf.objects import MESH_UNITS
 from training.checkpoints import load_autoencoder, load_classifier
 from training.data import open_shards, shard_crop_size
 from training.lit import classifier_metrics, load_codebook_npz, pair_subsets
@@ -294,6 +295,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--codebook", help="codebook npz from python -m training.codebook")
     p.add_argument("--codebook-k", type=int, default=20000, help="grid size if no --codebook")
     p.add_argument("--object", default=None, help="object override for building the codebook")
+    p.add_argument(
+        "--unit", default=None, choices=list(MESH_UNITS), help="--object's unit (default m)"
+    )
     p.add_argument("--cache-dir", default=None, help="data_gen pool cache folder")
     p.add_argument("--workers", type=int, default=1, help="render workers for the codebook")
     p.add_argument("--max-samples", type=int, default=4000, help="held-out samples (0 = all)")
@@ -318,7 +322,9 @@ def main(argv: list[str] | None = None) -> int:
         else:
             from training.codebook import render_eval_codebook
 
-            cb = render_eval_codebook(a.data, a.codebook_k, a.object, "m", a.cache_dir, a.workers)
+            cb = render_eval_codebook(
+                a.data, a.codebook_k, a.object, a.unit, a.cache_dir, a.workers
+            )
         res["ae"] = evaluate_ae(a.ae, a.data, cb, a.max_samples, a.seed)
     if a.pairs:
         res["pairs"] = evaluate_pairs(a.pairs, a.ae, a.ch, a.max_samples, a.seed)

@@ -13,6 +13,7 @@ from chpf.errors import MeshError
 from chpf.objects import (
     BUILTIN_OBJECTS,
     ObjectModel,
+    bop_obj_id,
     builtin_object,
     get_object,
     load_mesh,
@@ -50,6 +51,19 @@ def test_load_mesh_formats_and_units(tmp_path, suffix, unit):
     assert np.all(np.abs(obj.points) <= np.array(EXTENTS) / 2 + 1e-6)  # float32 files
     if suffix == ".ply":  # vertex colours survive
         assert len(np.unique(obj.mesh.visual.vertex_colors[:, 0])) > 1
+
+
+def test_a_mesh_named_as_bop_names_models_takes_its_obj_id_from_the_name(tmp_path):
+    assert bop_obj_id("models/obj_000005.ply") == 5
+    assert bop_obj_id("obj_000012_textured.obj") == 12
+    assert bop_obj_id("duck.ply") is None and bop_obj_id("my_obj_000005.ply") is None
+    path = tmp_path / "obj_000005.ply"
+    box_mesh().export(path)
+    assert load_mesh(path).obj_id == 5 and get_object(str(path)).obj_id == 5
+    assert load_mesh(path, obj_id=3).obj_id == 3
+    other = tmp_path / "duck.ply"
+    box_mesh().export(other)
+    assert load_mesh(other).obj_id == 0
 
 
 def test_load_scene_is_concatenated(tmp_path):

@@ -225,3 +225,38 @@ def test_contact_sheet_of_pairs(pairs_ref, tmp_path):
     assert cli.main(["contact-sheet", str(pairs_ref), "--out", str(png), "--n", "8"]) == 0
     img = cv2.imread(str(png))
     assert img is not None and img.shape[0] > 100 and img.shape[1] > 400
+
+
+def test_tools_find_the_mesh_a_folder_was_made_from(tmp_path, make_args):
+    """Data made from a mesh file records its path and unit: the evaluation codebook is built
+    for it without --object (it failed with 'obj_000001_textured: neither a built-in object nor
+    a mesh file'); a mesh that has moved is one line naming --object MESH, and --object with
+    the moved file (or another object, refused by its fingerprint) decides."""
+    import shutil
+
+    import trimesh
+
+    from data_gen.shards import manifest_object
+    from training.codebook import render_eval_codebook
+
+    mesh = trimesh.creation.box(extents=(0.08, 0.05, 0.12))
+    mesh.visual.vertex_colors = np.tile([200, 60, 30, 255], (len(mesh.vertices), 1))
+    path = tmp_path / "meshes" / "obj_000001_textured.ply"
+    path.parent.mkdir()
+    mesh.export(path)
+    out = tmp_path / "ae"
+    assert cli.main(["ae", "--object", str(path), "--out", str(out), "--n", "8",
+                     *make_args()]) == 0  # fmt: skip
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["object_source"] == {"path": str(path.resolve()), "unit": "m"}
+    obj = manifest_object(out)
+    assert obj.source == str(path.resolve()) and obj.obj_id == 1
+    cb = render_eval_codebook(out, 16, progress=False)
+    assert cb["rotations"].shape[0] == 16
+    moved = tmp_path / "elsewhere.ply"
+    shutil.move(path, moved)
+    with pytest.raises(DatasetError, match=r"manifest.json: made from the mesh .* pass --object"):
+        manifest_object(out)
+    assert manifest_object(out, str(moved)).source == str(moved.resolve())
+    with pytest.raises(DatasetError, match="fingerprints differ.*--object MESH"):
+        manifest_object(out, "mug")

@@ -11,6 +11,7 @@ import torch
 import yaml
 
 from chpf.bundle import Bundle
+from chpf.config_schema import load
 from chpf.crops import CropSpec
 from chpf.errors import BundleError, ConfigError
 from chpf.objects import get_object
@@ -145,6 +146,22 @@ def test_frozen_candidate_bundle_reuses_the_autoencoder_codebook(env, tmp_path):
     crops, idx = _pool_crops(env)
     obs = _check_classifier(b, ch.model.eval(), crops, idx)
     assert np.abs(obs - b.embed(crops)).max() > 1e-3
+
+
+def test_obj_id_is_set_by_the_config_or_the_flag(env, tmp_path):
+    """--obj-id (ExportConfig.obj_id) overrides the object's own obj_id (the box's 2) in the
+    manifest, so that the bundle matches a dataset that numbers the object otherwise."""
+    cfg = load(ExportConfig, data={"obj_id": 5}, base=env["cfg"])
+    out = tmp_path / "as5"
+    export_bundle(env["ae_ckpt"], env["chs_ckpt"], OBJ, out, cfg, progress=False)
+    assert json.loads((out / "manifest.json").read_text())["object"]["obj_id"] == 5
+    assert Bundle.load(out, threads=1).obj_info.obj_id == 5
+    assert (
+        export_cli.build_parser()
+        .parse_args(["--ae", "a", "--ch", "c", "--object", OBJ, "--out", "o", "--obj-id", "5"])
+        .obj_id
+        == 5
+    )
 
 
 def test_manifest_and_files(env):

@@ -174,6 +174,26 @@ def test_refusals(template_bundle, dataset, tmp_path, capsys):
     assert code == 2 and len(err) == 1 and err[0].startswith("error: ")
 
 
+def test_obj_id_maps_a_bundle_onto_the_datasets_object(template_bundle, dataset, tmp_path, capsys):
+    """A bundle whose obj_id (7) is not the dataset's (2) is refused with a hint at --obj-id;
+    --obj-id 2 tracks the dataset's object 2 with it and the results name obj_id 2; the model
+    check runs on the mapped id (the distractor, obj_id 4, is another object)."""
+    other = tmp_path / "bundle7"
+    shutil.copytree(template_bundle, other)
+    manifest = json.loads((other / "manifest.json").read_text())
+    manifest["object"]["obj_id"] = 7
+    (other / "manifest.json").write_text(json.dumps(manifest))
+    argv = ["--bundle", other, "--dataset", dataset, "--method", "srl", "--out", tmp_path / "o"]
+    with pytest.raises(BundleError, match=r"obj_id 7\).*pass --obj-id N"):
+        main([str(a) for a in argv])
+    code, _ = _run(capsys, *argv, "--obj-id", 2, "--no-progress", "--no-plot")
+    assert code == 0
+    rows = read_results_csv(next((tmp_path / "o").glob("srl_*.csv")))
+    assert rows and {r.obj_id for r in rows} == {2}
+    with pytest.raises(BundleError, match="obj_id 4 has diameter"):  # the distractor, obj_id 4
+        main([str(a) for a in argv] + ["--obj-id", "4", "--overwrite"])
+
+
 def test_bundle_of_another_object_with_the_same_obj_id_is_refused(
     template_bundle, dataset, tmp_path, capsys
 ):
