@@ -258,5 +258,5 @@ def test_tools_find_the_mesh_a_folder_was_made_from(tmp_path, make_args):
     with pytest.raises(DatasetError, match=r"manifest.json: made from the mesh .* pass --object"):
         manifest_object(out)
     assert manifest_object(out, str(moved)).source == str(moved.resolve())
-    with pytest.raises(DatasetError, match="fingerprints differ.*--object MESH"):
+    with pytest.raises(DatasetError, match=r"fingerprints differ.*--object MESH"):
         manifest_object(out, "mug")
