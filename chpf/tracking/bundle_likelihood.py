@@ -26,6 +26,13 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
    becomes 1 - (1 - C)(1 - C_box). Neither network sees a wrong depth well (the crops are
    scale-normalised): a belief at 1.4 x the true depth had C 0.05-0.2 and L 0.8.
 
+7. orientation search (``refine_neighbours`` k > 1, 0 = off): before steps 3-4, each particle's
+   nearest entry and its k - 1 nearest grid neighbours are compared with its crop's embedding
+   (the crop depends on t only, so no more encoder passes), and the particle's orientation moves
+   by the rotation from its entry to the best of them (R_allo <- G_best G_entry^T R_allo): one
+   step of a local search per weighing that keeps each particle's offset from the grid. The
+   moved orientations come back in ``Scores.R``; the filter adopts them.
+
 Particles with z below ``z_min`` (behind or at the camera) get c = -1 (L = 0) and C = 1.
 """
 
@@ -43,6 +50,7 @@ from chpf.geometry import allocentric_to_egocentric, egocentric_to_allocentric
 from chpf.tracking.candidates import backproject, valid_box
 from chpf.tracking.config import C_MODES, L_FROM_COS
 from chpf.tracking.depth_scores import depth_scores
+from chpf.tracking.rotation_diffusion import neighbour_table
 from chpf.tracking.timing import ms_since
 from chpf.tracking.types import CodebookScores, Frame, Scores
 
@@ -75,7 +83,8 @@ class BundleLikelihood:
     sigma: width of w = exp(-(1 - c)^2 / (2 sigma^2)). l_from_cos: "clip" | "affine" (L from
     c, see L_FROM_COS). c_mode: "learned" | "depth" | "both" | "none" (C = None). use_depth:
     use frame.depth when given (RGB-D). depth_margin / c_depth_margin: metres. depth_no_data:
-    L_depth and C_depth without valid depth pixels.
+    L_depth and C_depth without valid depth pixels. refine_neighbours: grid entries compared
+    by the orientation search (module docstring, item 7; 0 = off).
     """
 
     def __init__(
@@ -90,6 +99,7 @@ class BundleLikelihood:
         depth_no_data: float = 0.5,
         z_min: float = 0.05,
         c_box: float | None = None,
+        refine_neighbours: int = 0,
     ) -> None:
         if c_mode not in C_MODES:
             raise ConfigError(f"c_mode must be one of {C_MODES}, got {c_mode!r}")
@@ -111,6 +121,9 @@ class BundleLikelihood:
         self.depth_no_data = float(depth_no_data)
         self.z_min = float(z_min)
         self.c_box = c_box
+        self.neighbours = (
+            neighbour_table(self.grid, refine_neighbours) if refine_neighbours > 1 else None
+        )
         self._codebook_t = np.ascontiguousarray(bundle.ae_codebook.T)  # (E,K): fast matmul
         sd = bundle.depth_size
         self.depth_spec = CropSpec(
@@ -178,8 +191,13 @@ class BundleLikelihood:
             ch_emb = emb
 
         t0 = time.perf_counter()
-        idx = self.bundle.nearest(egocentric_to_allocentric(R, t))
-        c = self.bundle.cosine(emb, idx).astype(np.float64)
+        R_allo = egocentric_to_allocentric(R, t)
+        idx = self.bundle.nearest(R_allo)
+        R_moved = None
+        if self.neighbours is None:
+            c = self.bundle.cosine(emb, idx).astype(np.float64)
+        else:
+            idx, c, R_moved = self._search(emb, idx, R_allo, t)
         behind = t[:, 2] < self.z_min
         c[behind] = -1.0
         L = likelihood_from_cosine(c, self.l_from_cos)
@@ -207,7 +225,23 @@ class BundleLikelihood:
             C = 0.5 * (C + self.depth_no_data)
         if C is not None:
             C = np.where(behind, 1.0, self._with_box_scale(C, frame, idx, t))
-        return Scores(L=L, w=w, C=C, stage_ms=ms)
+        return Scores(L=L, w=w, C=C, stage_ms=ms, R=R_moved)
+
+    def _search(
+        self, emb: np.ndarray, idx: np.ndarray, R_allo: np.ndarray, t: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The orientation search (module docstring, item 7) for embeddings emb (N,E) of
+        particles at entries idx (N,), allocentric R_allo (N,3,3), t (N,3): the best entries
+        (N,), their cosines (N,) and the moved egocentric orientations (N,3,3)."""
+        assert self.neighbours is not None
+        nb = self.neighbours[idx]  # (N,k), the entry itself first
+        cos = np.einsum("ne,nke->nk", emb, self.bundle.ae_codebook[nb]).astype(np.float64)
+        j = np.argmax(cos, axis=1)  # ties keep the particle's own entry
+        rows = np.arange(idx.shape[0])
+        best = nb[rows, j]
+        G = self.grid.rotations
+        moved = G[best] @ np.swapaxes(G[idx], -1, -2) @ R_allo
+        return best, cos[rows, j], allocentric_to_egocentric(moved, t)
 
     def _with_box_scale(
         self, C: np.ndarray, frame: Frame, idx: np.ndarray, t: np.ndarray

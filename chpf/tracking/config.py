@@ -73,13 +73,16 @@ class CandidatesConfig(Section):
 @dataclass
 class LikelihoodConfig(Section):
     """Likelihoods: sigma (AE cosine -> importance weight width), l_from_cos (L_FROM_COS),
-    depth margins (m) and the scores of a hypothesis without depth data."""
+    depth margins (m), the scores of a hypothesis without depth data and refine_neighbours,
+    the grid entries of each weighing's orientation search (0 = off; see
+    chpf.tracking.bundle_likelihood)."""
 
     sigma: float = setting(0.1, gt=0.0)
     l_from_cos: LFromCos = "clip"
     depth_margin: float = setting(0.03, ge=0.0)
     c_depth_margin: float = setting(0.02, ge=0.0)
     depth_no_data: float = setting(0.5, ge=0.0, le=1.0)
+    refine_neighbours: int = setting(12, ge=0)
 
 
 @dataclass

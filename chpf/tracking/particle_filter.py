@@ -83,6 +83,8 @@ class ParticleFilter(FilterLoop):
         for m, beta in enumerate(betas):
             t0 = time.perf_counter()
             scores = self.likelihood.score(frame, self.R, self.t)
+            if scores.R is not None:  # the likelihood's orientation search moved them
+                self.R = scores.R
             stage_ms["likelihood"] = stage_ms.get("likelihood", 0.0) + ms_since(t0)
             add_ms(stage_ms, scores.stage_ms)
             weights = Weights.from_weights(scores.w)

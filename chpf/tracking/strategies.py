@@ -107,8 +107,8 @@ class CHPFConfig(Section):
 
     c_mode: CMode = "learned"
     sums: CHPFSums = "weighted"
-    l_power: float = setting(4.0, gt=0.0)
-    c_box: float | None = setting(None, gt=0.0)
+    l_power: float = setting(3.0, gt=0.0)
+    c_box: float | None = setting(0.2, gt=0.0)
 
 
 class CHPF(Strategy):

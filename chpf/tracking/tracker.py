@@ -116,6 +116,7 @@ class Tracker:
             c_depth_margin=lik.c_depth_margin,
             depth_no_data=lik.depth_no_data,
             c_box=cfg.chpf.c_box,
+            refine_neighbours=lik.refine_neighbours,
         )
         diameter = float(bundle.obj_info.diameter)
         cand = cfg.candidates

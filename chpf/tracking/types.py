@@ -31,12 +31,15 @@ class Scores:
     w: (N,) importance weights (>= 0, not normalised).
     C: (N,) Counter-Hypothetical likelihood in [0, 1] (probability of misalignment) or None.
     stage_ms: milliseconds spent per stage (e.g. "crop", "encode", "head").
+    R: (N,3,3) the orientations that were scored when the likelihood moved them (its
+    orientation search), which the filter adopts; None when it scored the given ones.
     """
 
     L: np.ndarray
     w: np.ndarray
     C: np.ndarray | None = None
     stage_ms: dict[str, float] = field(default_factory=dict)
+    R: np.ndarray | None = None
 
 
 @dataclass

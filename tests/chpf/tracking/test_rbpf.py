@@ -15,7 +15,7 @@ from chpf.tracking import (
     RaoBlackwellisedFilter,
 )
 from chpf.tracking.chrbpf import CHRBPF
-from chpf.tracking.rotation_diffusion import grid_spacing, neighbour_matrix
+from chpf.tracking.rotation_diffusion import grid_spacing, neighbour_matrix, neighbour_table
 from chpf.tracking.strategies import CHPF, CHPFConfig
 
 GRID = RotationGrid.uniform(2048)
@@ -159,7 +159,7 @@ def test_chrbpf_converges_and_its_alpha_is_chpfs_rule_over_its_particles(sequenc
     cos = oracle.codebook_scores(frame, filt.t).cos[np.arange(50), k]
     C = oracle.codebook_scores(frame, filt.t).misaligned(k)
     W = weighed.weights.W
-    e_c, e_l = W @ C, W @ np.clip(cos, 0, None) ** 4
+    e_c, e_l = W @ C, W @ np.clip(cos, 0, None) ** CHPFConfig().l_power
     assert weighed.alpha == pytest.approx(e_c / (e_c + e_l))
     assert weighed.sum_C == pytest.approx(C.sum())
 
@@ -172,3 +172,12 @@ def test_chrbpf_reinvigorates_all_after_a_forced_collapse_and_recovers(sequence)
     errs, res = track(filt, oracle, sequence, range(30, 60))
     assert res[0].alpha > 0.8 and errs[0, 0] > 0.05
     assert errs[-10:, 0].mean() < 0.02 and errs[-10:, 1].mean() < 12.0
+
+
+def test_neighbour_table_lists_each_entry_first_then_its_nearest():
+    table = neighbour_table(GRID, 6)
+    assert table.shape == (len(GRID), 6)
+    np.testing.assert_array_equal(table[:, 0], np.arange(len(GRID)))
+    assert all(len(set(row)) == 6 for row in table)
+    angles = geodesic_angle(GRID.rotations[table[:, 1:]], GRID.rotations[:, None])
+    assert angles.max() < 4 * grid_spacing(GRID)

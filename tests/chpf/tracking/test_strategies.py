@@ -51,11 +51,11 @@ def test_chpf_paper_sums_ignore_weights_and_freshness():
     assert chpf("paper").alpha(scores(), W_FIXED, FRESH) == pytest.approx(3.0 / (3.0 + 1.8))
 
 
-def test_chpf_default_is_weighted_sums_with_l_to_the_fourth():
-    assert (CHPFConfig().sums, CHPFConfig().l_power) == ("weighted", 4.0)
+def test_chpf_default_is_weighted_sums_with_l_cubed_and_the_box_scale_c():
+    assert (CHPFConfig().sums, CHPFConfig().l_power, CHPFConfig().c_box) == ("weighted", 3.0, 0.2)
     e_c = W_FIXED @ C_FIXED
-    e_l4 = W_FIXED @ L_FIXED**4
-    assert CHPF().alpha(scores(), W_FIXED, FRESH) == pytest.approx(e_c / (e_c + e_l4))
+    e_l3 = W_FIXED @ L_FIXED**3
+    assert CHPF().alpha(scores(), W_FIXED, FRESH) == pytest.approx(e_c / (e_c + e_l3))
 
 
 @pytest.mark.parametrize("sums", CHPF_SUMS)
