@@ -56,9 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     with lock_output_path(args.bundle, "chpf-quantize"):
         crops = calibration_crops(dataset, bundle, args.crops)
-        report = quantize_bundle(
-            args.bundle, crops, args.min_cosine, args.threads, source=source
-        )
+        report = quantize_bundle(args.bundle, crops, args.min_cosine, args.threads, source=source)
     for key, name in report.files.items():
         print(f"{args.bundle / name}: {key}, min cosine to float32 {report.min_cosine[key]:.4f}")
     print(
