@@ -26,12 +26,20 @@ def naming(path: str | os.PathLike) -> Iterator[None]:
         raise OSError(err.errno, err.strerror, str(path)) from None
 
 
+def _umask() -> int:
+    """The process's umask (read by setting it and back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` through a temp file in the same folder and ``os.replace``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; a written file gets the umask's
         with naming(path), os.fdopen(fd, "wb") as f:
             f.write(data)
         os.replace(tmp, path)

@@ -42,6 +42,10 @@ SUPPORTED_CROP_SIZES: tuple[int, ...] = tuple(range(32, 257, 16))
 """Crop sizes S the runtime supports: multiples of 16 from 32 to 256."""
 
 _REQUIRED_FILES = ("ae_encoder", "ch_head", "codebook")
+PRECISIONS = ("float32", "int8")
+"""Encoder precisions a bundle may hold: float32 (always) and int8 (``chpf-quantize``)."""
+PRECISION_FILES = ("ae_encoder", "ch_obs_encoder")
+"""The manifest ``files`` keys that a precision replaces (the encoders)."""
 _CODEBOOK_ARRAYS = ("rotations", "ae_embeddings", "depth")  # + ch_embeddings unless shared
 
 
@@ -157,13 +161,29 @@ def _encoder_io_check(sess: ort.InferenceSession, path: Path, size: int, dim: in
         raise BundleError(f"{path}: encoder output shape {out} does not match embedding_dim {dim}")
 
 
+def _precision_files(manifest: dict[str, Any], precision: str, mpath: Path) -> dict[str, str]:
+    """The encoder files (key -> name) of ``precision`` that replace the float32 ones."""
+    if precision not in PRECISIONS:
+        raise ConfigError(f"unknown precision {precision!r} (choose from {', '.join(PRECISIONS)})")
+    if precision == "float32":
+        return {}
+    entry = manifest.get("precisions", {}).get(precision)
+    if not isinstance(entry, dict) or not isinstance(entry.get("files"), dict):
+        raise BundleError(
+            f"{mpath}: no {precision} encoders in this bundle; make them with "
+            f"chpf-quantize --bundle {mpath.parent}"
+        )
+    return {k: str(v) for k, v in entry["files"].items() if k in PRECISION_FILES}
+
+
 class Bundle:
     """A loaded model bundle; all calls are batched over the first axis.
 
     Use ``Bundle.load(path, threads=2)``. Attributes: ``path``, ``manifest`` (dict), ``spec``
     (CropSpec), ``obj_info`` (ObjectInfo), ``grid`` (RotationGrid over the codebook),
     ``ae_codebook`` / ``ch_codebook`` (K,E) float32, ``embedding_dim``, ``codebook_size``,
-    ``shares_encoder`` (the classifier's observed branch is the AE encoder).
+    ``shares_encoder`` (the classifier's observed branch is the AE encoder), ``precision`` (of the
+    encoders, PRECISIONS).
     """
 
     def __init__(
@@ -191,18 +211,26 @@ class Bundle:
         self._ae = ae_session
         self._ch = ch_session
         self._head = head_session
+        self.precision = "float32"  # of the encoders (PRECISIONS); set by ``load``
 
     # ------------------------------------------------------------------ loading
     @classmethod
     def load(
-        cls, path: str | Path, threads: int = 2, verify: bool = True, spin: bool = True
+        cls,
+        path: str | Path,
+        threads: int = 2,
+        verify: bool = True,
+        spin: bool = True,
+        precision: str = "float32",
     ) -> Bundle:
         """Load and validate the bundle in folder ``path``.
 
         ``threads``: onnxruntime intra-op threads per session (graph optimisation: all).
-        ``verify``: check sha256 hashes. ``spin``: see ``session_options``.
+        ``verify``: check sha256 hashes. ``spin``: see ``session_options``. ``precision``: the
+        encoders' (PRECISIONS; int8 needs the manifest's ``precisions.int8``, see
+        ``export.quantize``).
         Raises BundleError (one line naming the file) on a missing file, a hash mismatch, an
-        unsupported format version or crop size, or inconsistent shapes.
+        unsupported format version or crop size, inconsistent shapes or a missing precision.
         """
         root = Path(path)
         mpath = root / MANIFEST
@@ -234,6 +262,7 @@ class Bundle:
             raise BundleError(f"{mpath}: malformed manifest ({err})") from None
         except (KeyError, TypeError, ValueError) as err:
             raise BundleError(f"{mpath}: malformed manifest (bad or missing {err})") from None
+        files.update(_precision_files(manifest, precision, mpath))
         check_crop_size(int(spec.size), str(mpath))
         for key in _REQUIRED_FILES:
             if not files.get(key):
@@ -277,7 +306,9 @@ class Bundle:
             {"obs": "tensor(float)", "cand": "tensor(float)"},
             {"p_misaligned": "tensor(float)"},
         )
-        return cls(root, manifest, spec, obj_info, codebook, ae, ch, head)
+        bundle = cls(root, manifest, spec, obj_info, codebook, ae, ch, head)
+        bundle.precision = precision
+        return bundle
 
     # ------------------------------------------------------------------ data
     def check_dataset(

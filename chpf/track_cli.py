@@ -479,7 +479,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.demo:
         from chpf.tracking.demo import DEMO_METHODS, demo_dataset, shipped_bundle
 
-        bundle = Bundle.load(args.bundle or shipped_bundle(), run_cfg.threads, spin=run_cfg.spin)
+        bundle = Bundle.load(
+            args.bundle or shipped_bundle(),
+            run_cfg.threads,
+            spin=run_cfg.spin,
+            precision=run_cfg.precision,
+        )
         dataset = demo_dataset(bundle)
         if args.modality != "rgb":
             raise ConfigError(f"{dataset}: the demo sequence is RGB only (no depth frames)")
@@ -492,7 +497,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.bundle is None:
         raise ConfigError("chpf-track needs --bundle and --dataset (or --demo)")
     methods = parse_methods(args.method)
-    bundle = Bundle.load(args.bundle, run_cfg.threads, spin=run_cfg.spin)
+    bundle = Bundle.load(
+        args.bundle, run_cfg.threads, spin=run_cfg.spin, precision=run_cfg.precision
+    )
     if args.dataset is not None:
         return track(args, methods, bundle, lambda: bop_input(args, args.dataset, bundle))
     return track(args, methods, bundle, lambda: plain_input(args, bundle))

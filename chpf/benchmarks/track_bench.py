@@ -126,9 +126,11 @@ def main(argv: list[str] | None = None) -> int:
         from chpf.tracking.demo import shipped_bundle
 
         args.bundle = shipped_bundle()
-    bundle = Bundle.load(args.bundle, threads=args.threads, spin=args.spin)
     cfg = make_config(
         args.config, filter={"n_particles": args.n_particles}, runtime={"threads": args.threads}
+    )
+    bundle = Bundle.load(
+        args.bundle, threads=args.threads, spin=args.spin, precision=cfg.runtime.precision
     )
     frames = bench_frames(bundle)
     rows = {}

@@ -95,6 +95,13 @@ class Tracker:
                 f"{bundle.path}: bundle crop size {bundle.spec.size} differs from the "
                 f"configured runtime.crop_size {crop_size}"
             )
+        if bundle.precision != cfg.runtime.precision:
+            bundle = Bundle.load(
+                bundle.path,
+                threads=cfg.runtime.threads,
+                spin=cfg.runtime.spin,
+                precision=cfg.runtime.precision,
+            )
         rgbd = modality == "rgbd"
         c_mode = cfg.chpf.c_mode if method == "chpf" else "none"  # only CH-PF uses C
         if c_mode in ("depth", "both") and not rgbd:
@@ -164,7 +171,12 @@ class Tracker:
         if isinstance(path, Bundle):
             bundle = path
         else:
-            bundle = Bundle.load(path, threads=cfg.runtime.threads, spin=cfg.runtime.spin)
+            bundle = Bundle.load(
+                path,
+                threads=cfg.runtime.threads,
+                spin=cfg.runtime.spin,
+                precision=cfg.runtime.precision,
+            )
         return cls(bundle, method=method, modality=modality, seed=seed, config=cfg)
 
     def reset(self, seed: int | Sequence[int] | None = None) -> None:

@@ -1,0 +1,85 @@
+"""chpf-quantize on a copy of the shipped bundle with the shipped demo's crops: int8 encoders
+that agree with float32, recorded in the manifest and loaded by precision; refusals."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import stat
+
+import numpy as np
+import pytest
+
+from chpf.bundle import Bundle
+from chpf.errors import BundleError, ConfigError
+from chpf.tracking.demo import demo_dataset, shipped_bundle
+from chpf.tracking.tracker import Tracker
+from export.quantize import calibration_crops, quantize_bundle
+from export.quantize_cli import main
+
+
+@pytest.fixture(scope="module")
+def crops():
+    bundle = Bundle.load(shipped_bundle())
+    return calibration_crops(demo_dataset(bundle), bundle, 128)
+
+
+@pytest.fixture
+def copy(tmp_path):
+    out = tmp_path / "box"
+    shutil.copytree(shipped_bundle(), out)
+    for extra in out.glob("*.int8.onnx"):  # the shipped bundle may carry int8 files already
+        extra.unlink()
+    manifest = json.loads((out / "manifest.json").read_text())
+    for name in manifest.get("precisions", {}).get("int8", {}).get("files", {}).values():
+        manifest["sha256"].pop(name, None)
+    manifest.pop("precisions", None)
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    return out
+
+
+def test_calibration_crops_show_the_object_near_its_true_place(crops):
+    assert crops.shape == (128, 64, 64, 3) and crops.dtype == np.uint8
+    assert crops.std() > 20  # real image content, not blank crops
+
+
+def test_int8_encoders_agree_with_float32_and_load_by_precision(copy, crops):
+    with pytest.raises(BundleError, match=r"no int8 encoders.*chpf-quantize --bundle"):
+        Bundle.load(copy, precision="int8")
+    report = quantize_bundle(copy, crops, source="demo")
+    assert set(report.files) == {"ae_encoder", "ch_obs_encoder"}
+    assert min(report.min_cosine.values()) >= 0.99 and report.crops == (64, 64)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    entry = manifest["precisions"]["int8"]
+    assert entry["files"] == report.files and entry["calibration"]["source"] == "demo"
+    for name in report.files.values():
+        path = copy / name
+        assert (
+            manifest["sha256"][name]
+            and path.stat().st_size < 0.4 * (copy / "ae_encoder.onnx").stat().st_size
+        )
+        assert path.stat().st_mode & stat.S_IRGRP  # the umask's mode, not mkstemp's 0600
+    f32, i8 = Bundle.load(copy), Bundle.load(copy, precision="int8")
+    assert (f32.precision, i8.precision) == ("float32", "int8")
+    e32, e8 = f32.embed(crops[:16]), i8.embed(crops[:16])
+    assert np.all(np.sum(e32 * e8, axis=1) > 0.99) and not np.array_equal(e32, e8)
+    tracker = Tracker.from_bundle(f32, config={"runtime": {"precision": "int8"}})
+    assert tracker.bundle.precision == "int8"
+    with pytest.raises(ConfigError, match="unknown precision"):
+        Bundle.load(copy, precision="int4")
+
+
+def test_disagreement_writes_nothing(copy, crops):
+    before = sorted(p.name for p in copy.iterdir())
+    manifest = (copy / "manifest.json").read_bytes()
+    with pytest.raises(BundleError, match=r"agree with float32 down to cosine .* nothing written"):
+        quantize_bundle(copy, crops, min_cosine=1.0)
+    assert sorted(p.name for p in copy.iterdir()) == before
+    assert (copy / "manifest.json").read_bytes() == manifest
+
+
+def test_cli_uses_the_demo_crops_for_the_shipped_object(copy, capsys):
+    assert main(["--bundle", str(copy), "--crops", "64"]) == 0
+    out = capsys.readouterr().out
+    assert "ae_encoder.int8.onnx" in out and "runtime.precision=int8" in out
+    assert Bundle.load(copy, precision="int8").precision == "int8"
