@@ -129,8 +129,9 @@ def main(argv: list[str] | None = None) -> int:
     cfg = make_config(
         args.config, filter={"n_particles": args.n_particles}, runtime={"threads": args.threads}
     )
+    run = cfg.runtime
     bundle = Bundle.load(
-        args.bundle, threads=args.threads, spin=args.spin, precision=cfg.runtime.precision
+        args.bundle, args.threads, spin=args.spin, precision=run.precision, device=run.device
     )
     frames = bench_frames(bundle)
     rows = {}
