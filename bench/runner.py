@@ -25,7 +25,7 @@ from tqdm import tqdm
 from bench.jobs import Job
 
 SUMMARY = "summary.json"
-_BUNDLES: dict[tuple[str, int, str], Any] = {}  # per worker process: loaded bundles
+_BUNDLES: dict[tuple[str, int, str, str], Any] = {}  # per worker process: loaded bundles
 
 
 def job_dir(out: Path, job: Job) -> Path:
@@ -36,12 +36,14 @@ def is_done(out: Path, job: Job) -> bool:
     return (job_dir(out, job) / SUMMARY).is_file()
 
 
-def _bundle(path: str, threads: int, precision: str):
+def _bundle(path: str, threads: int, precision: str, device: str):
     from chpf.bundle import Bundle
 
-    key = (path, threads, precision)
+    key = (path, threads, precision, device)
     if key not in _BUNDLES:
-        _BUNDLES[key] = Bundle.load(path, threads=threads, spin=False, precision=precision)
+        _BUNDLES[key] = Bundle.load(
+            path, threads=threads, spin=False, precision=precision, device=device
+        )
     return _BUNDLES[key]
 
 
@@ -63,7 +65,7 @@ def run_job(job: Job, out: Path, n_particles: int, config: str | None, threads: 
     seq = job.seq
     cfg = make_config(config, filter={"n_particles": n_particles}, runtime={"threads": threads})
     tracker = Tracker(
-        _bundle(seq.bundle, threads, cfg.runtime.precision),
+        _bundle(seq.bundle, threads, cfg.runtime.precision, cfg.runtime.device),
         job.method,
         job.modality,
         seed=job.seed,

@@ -33,6 +33,7 @@ from chpf.crops import CropSpec
 from chpf.errors import BundleError, ConfigError, ImageSizeError
 from chpf.geometry import RotationGrid
 from chpf.hashing import sha256_file
+from chpf.providers import execution_providers
 
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
@@ -128,11 +129,11 @@ def session_options(threads: int, level: str = "all", spin: bool = True) -> ort.
     return opts
 
 
-def _open_session(path: Path, opts: ort.SessionOptions) -> ort.InferenceSession:
+def _open_session(
+    path: Path, opts: ort.SessionOptions, providers: list[str]
+) -> ort.InferenceSession:
     try:
-        return ort.InferenceSession(
-            str(path), sess_options=opts, providers=["CPUExecutionProvider"]
-        )
+        return ort.InferenceSession(str(path), sess_options=opts, providers=providers)
     except Exception as err:  # onnxruntime raises several private exception types
         msg = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise BundleError(f"{path}: onnxruntime cannot load the model ({msg})") from None
@@ -212,6 +213,8 @@ class Bundle:
         self._ch = ch_session
         self._head = head_session
         self.precision = "float32"  # of the encoders (PRECISIONS); set by ``load``
+        self.device = "cpu"  # as asked (chpf.providers.DEVICES); set by ``load``
+        self.providers: list[str] = ["CPUExecutionProvider"]  # those the sessions use
 
     # ------------------------------------------------------------------ loading
     @classmethod
@@ -222,6 +225,7 @@ class Bundle:
         verify: bool = True,
         spin: bool = True,
         precision: str = "float32",
+        device: str = "auto",
     ) -> Bundle:
         """Load and validate the bundle in folder ``path``.
 
@@ -229,6 +233,8 @@ class Bundle:
         ``verify``: check sha256 hashes. ``spin``: see ``session_options``. ``precision``: the
         encoders' (PRECISIONS; int8 needs the manifest's ``precisions.int8``, see
         ``export.quantize``).
+        ``device``: where the networks run (chpf.providers.DEVICES; ConfigError for cuda
+        without onnxruntime-gpu).
         Raises BundleError (one line naming the file) on a missing file, a hash mismatch, an
         unsupported format version or crop size, inconsistent shapes or a missing precision.
         """
@@ -293,13 +299,14 @@ class Bundle:
         if int(threads) < 1:
             raise ConfigError(f"Bundle.load: threads must be >= 1, got {threads}")
         opts = session_options(int(threads), spin=spin)
-        ae = _open_session(paths["ae_encoder"], opts)
+        providers = execution_providers(device)
+        ae = _open_session(paths["ae_encoder"], opts, providers)
         _encoder_io_check(ae, paths["ae_encoder"], int(spec.size), dim)
         ch = None
         if not shared:
-            ch = _open_session(paths["ch_obs_encoder"], opts)
+            ch = _open_session(paths["ch_obs_encoder"], opts, providers)
             _encoder_io_check(ch, paths["ch_obs_encoder"], int(spec.size), dim)
-        head = _open_session(paths["ch_head"], opts)
+        head = _open_session(paths["ch_head"], opts, providers)
         _check_io(
             head,
             paths["ch_head"],
@@ -307,7 +314,8 @@ class Bundle:
             {"p_misaligned": "tensor(float)"},
         )
         bundle = cls(root, manifest, spec, obj_info, codebook, ae, ch, head)
-        bundle.precision = precision
+        bundle.precision, bundle.device = precision, device
+        bundle.providers = list(ae.get_providers())
         return bundle
 
     # ------------------------------------------------------------------ data

@@ -34,11 +34,12 @@ import numpy as np
 
 from chpf.atomic import atomic_write_text
 from chpf.bop import BopDataset, read_results_csv
-from chpf.bundle import Bundle
+from chpf.bundle import PRECISIONS, Bundle
 from chpf.console import run_main, scene_list
 from chpf.errors import BundleError, ConfigError, DatasetError
 from chpf.model_points import model_points
 from chpf.outdir import check_out_dir, check_out_file, claim_settings, lock_output_dir
+from chpf.providers import DEVICES, describe
 from chpf.sources.boxes import parse_box
 from chpf.sources.frame import FrameSource
 from chpf.tracking.boxes import make_box_source
@@ -134,6 +135,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--method", default="chpf", help="a method, a comma list, or 'all'")
     p.add_argument("--modality", default="rgb", choices=MODALITIES)
+    p.add_argument(
+        "--device",
+        choices=DEVICES,
+        default=None,
+        help="where the networks run: auto (GPU if onnxruntime-gpu sees one), cpu, cuda "
+        "(default: the config's runtime.device, auto)",
+    )
+    p.add_argument(
+        "--precision",
+        choices=PRECISIONS,
+        default=None,
+        help="the encoders': float32 or int8 (a bundle made by chpf-quantize; default: the "
+        "config's runtime.precision, float32)",
+    )
     p.add_argument(
         "--detections",
         type=Path,
@@ -384,7 +399,8 @@ def track(
         settings = track_settings(bundle, inp.settings, methods, args.modality, args.seed, cfg)
         if claim_settings(out, SETTINGS_FILE, settings, args.overwrite or fresh) or fresh:
             clear_outputs(out)
-        print(inp.boxes, flush=True)
+        where = f"networks on the {describe(bundle.providers)}, {bundle.precision}"
+        print(f"{inp.boxes}; {where}", flush=True)
         print(
             f"tracking obj_id {obj_id} ({bundle.obj_info.name}) in {inp.what} with "
             f"{', '.join(methods)} [{args.modality}, N={cfg.filter.n_particles}] -> {out}",
@@ -430,9 +446,15 @@ def track(
 
 
 def tracking_config(args: argparse.Namespace) -> Any:
-    """The TrackConfig of --config, --set and --n-particles (ConfigError naming the key)."""
-    n = {} if args.n_particles is None else {"filter": {"n_particles": args.n_particles}}
-    return make_config(args.config, args.set, **n)
+    """The TrackConfig of --config, --set, --n-particles, --device and --precision
+    (ConfigError naming the key)."""
+    sections: dict[str, dict[str, Any]] = {}
+    if args.n_particles is not None:
+        sections["filter"] = {"n_particles": args.n_particles}
+    runtime = {k: getattr(args, k) for k in ("device", "precision") if getattr(args, k)}
+    if runtime:
+        sections["runtime"] = runtime
+    return make_config(args.config, args.set, **sections)
 
 
 def check_input_options(args: argparse.Namespace) -> None:
@@ -484,6 +506,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             run_cfg.threads,
             spin=run_cfg.spin,
             precision=run_cfg.precision,
+            device=run_cfg.device,
         )
         dataset = demo_dataset(bundle)
         if args.modality != "rgb":
@@ -498,7 +521,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise ConfigError("chpf-track needs --bundle and --dataset (or --demo)")
     methods = parse_methods(args.method)
     bundle = Bundle.load(
-        args.bundle, run_cfg.threads, spin=run_cfg.spin, precision=run_cfg.precision
+        args.bundle,
+        run_cfg.threads,
+        spin=run_cfg.spin,
+        precision=run_cfg.precision,
+        device=run_cfg.device,
     )
     if args.dataset is not None:
         return track(args, methods, bundle, lambda: bop_input(args, args.dataset, bundle))

@@ -19,6 +19,7 @@ import numpy as np
 from chpf.bundle import Bundle
 from chpf.errors import BundleError, ConfigError, ImageSizeError
 from chpf.geometry import check_image_size
+from chpf.providers import execution_providers
 from chpf.tracking.boxes import BoxChecker
 from chpf.tracking.bundle_likelihood import BundleLikelihood
 from chpf.tracking.candidates import CandidateSampler
@@ -95,12 +96,17 @@ class Tracker:
                 f"{bundle.path}: bundle crop size {bundle.spec.size} differs from the "
                 f"configured runtime.crop_size {crop_size}"
             )
-        if bundle.precision != cfg.runtime.precision:
+        run = cfg.runtime
+        if (bundle.precision, bundle.providers) != (
+            run.precision,
+            execution_providers(run.device),
+        ):
             bundle = Bundle.load(
                 bundle.path,
-                threads=cfg.runtime.threads,
-                spin=cfg.runtime.spin,
-                precision=cfg.runtime.precision,
+                threads=run.threads,
+                spin=run.spin,
+                precision=run.precision,
+                device=run.device,
             )
         rgbd = modality == "rgbd"
         c_mode = cfg.chpf.c_mode if method == "chpf" else "none"  # only CH-PF uses C
@@ -154,14 +160,18 @@ class Tracker:
         modality: str = "rgb",
         seed: int = 0,
         config: str | Path | dict[str, Any] | TrackConfig | None = None,
+        device: str | None = None,
         **sections: dict[str, Any],
     ) -> Tracker:
         """Load the bundle folder ``path`` (or use a loaded Bundle) and build a Tracker.
 
         ``config``: a YAML file / nested dict / TrackConfig; ``sections`` override keys of
         its sections (e.g. motion={"sigma_t": 0.02}, srl={"beta": 0.5}); n_particles sets
-        filter.n_particles (None: the config's). Raises BundleError / ConfigError.
+        filter.n_particles (None: the config's); device sets runtime.device (auto | cpu |
+        cuda; None: the config's). Raises BundleError / ConfigError.
         """
+        if device is not None:
+            sections = {**sections, "runtime": {**sections.get("runtime", {}), "device": device}}
         if n_particles is not None:
             sections = {
                 **sections,
@@ -176,6 +186,7 @@ class Tracker:
                 threads=cfg.runtime.threads,
                 spin=cfg.runtime.spin,
                 precision=cfg.runtime.precision,
+                device=cfg.runtime.device,
             )
         return cls(bundle, method=method, modality=modality, seed=seed, config=cfg)
 

@@ -376,3 +376,18 @@ def test_invalid_detection_boxes_and_missing_depth_are_warned_once(
     where = f"scene {first['scene_id']} image {first['image_id']}"
     assert boxes[0].startswith("warning: ") and where in boxes[0] and "dets.json" in boxes[0]
     assert depth[0].startswith("warning: ") and str(depth_png) in depth[0]
+
+
+def test_device_and_precision_options(dataset, tmp_path, capsys):
+    """--device cuda without onnxruntime-gpu is one line and exit 2; the first output line says
+    where the networks run and at which precision."""
+    code, err = _console_script(
+        ["--demo", "--device", "cuda", "--out", str(tmp_path / "c")], capsys
+    )
+    assert code == 2 and len(err) == 1 and "device cuda" in err[0] and "chpf[gpu]" in err[0]
+    code, lines = _run(capsys, "--demo", "--method", "srl", "--device", "cpu", "--no-plot",
+                       "--no-progress", "--out", tmp_path / "d")  # fmt: skip
+    assert code == 0 and "networks on the CPU (CPUExecutionProvider), float32" in lines[0]
+    code, lines = _run(capsys, "--demo", "--method", "srl", "--precision", "int8", "--no-plot",
+                       "--no-progress", "--out", tmp_path / "i")  # fmt: skip
+    assert code == 0 and lines[0].endswith("int8")
