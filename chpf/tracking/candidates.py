@@ -18,7 +18,7 @@ that fraction of its width and height around its centre); the depth z is
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -74,6 +74,38 @@ class CandidateSampler:
     use_depth: bool = True
     uv_fraction: float = 1.0
     rotations: RotationSource | None = None  # None: uniform on SO(3)
+    occluded_box: bool = False  # a detection inside the belief's box: draw from the belief's
+
+    def belief_box(self, t: np.ndarray, K: np.ndarray) -> Box | None:
+        """The square box (x, y, w, h) pixels that the object at translation t (3,) metres
+        spans (side fx * box_extent / z around the projection of t); None without an extent
+        or in front of the camera."""
+        if self.box_extent is None or self.box_extent <= 0 or t[2] <= 0:
+            return None
+        side = K[0, 0] * self.box_extent / t[2]
+        u = K[0, 0] * t[0] / t[2] + K[0, 2]
+        v = K[1, 1] * t[1] / t[2] + K[1, 2]
+        return (u - side / 2, v - side / 2, side, side)
+
+    def box_for(self, frame: Frame, estimate_t: np.ndarray | None) -> Box | None:
+        """The box phi_cand draws from: the detection, or (``occluded_box``) the belief's box
+        when the detection lies inside it and is smaller by more than 10 %: a detection of the
+        visible part of the believed object, whose own box would put candidates too far away
+        and off-centre."""
+        det = valid_box(frame.box)
+        if not self.occluded_box or det is None or estimate_t is None:
+            return det
+        bel = self.belief_box(np.asarray(estimate_t, dtype=np.float64), np.asarray(frame.K))
+        if bel is None:
+            return det
+        tol = 0.1 * bel[2]
+        inside = (
+            det[0] >= bel[0] - tol
+            and det[1] >= bel[1] - tol
+            and det[0] + det[2] <= bel[0] + bel[2] + tol
+            and det[1] + det[3] <= bel[1] + bel[3] + tol
+        )
+        return bel if inside and max(det[2], det[3]) < 0.9 * bel[2] else det
 
     def _z_rgb_range(self, box: Box, K: np.ndarray) -> tuple[float, float]:
         """The RGB rule's depth range (lo, hi) metres for a box (module docstring)."""
@@ -129,9 +161,17 @@ class CandidateSampler:
         return backproject(u, v, z, K)
 
     def sample(
-        self, n: int, frame: Frame, rng: np.random.Generator
+        self,
+        n: int,
+        frame: Frame,
+        rng: np.random.Generator,
+        estimate_t: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """n poses (R (n,3,3), t (n,3)) from phi_cand; frame.box must be a valid box."""
+        """n poses (R (n,3,3), t (n,3)) from phi_cand; frame.box must be a valid box.
+        ``estimate_t`` (3,): the belief's translation (``box_for``), None when there is none."""
+        box = self.box_for(frame, estimate_t)
+        if box != valid_box(frame.box):
+            frame = replace(frame, box=box)
         t = self.translations(n, frame, rng)
         if self.rotations is None:
             return random_rotations(n, rng), t

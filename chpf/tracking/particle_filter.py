@@ -114,7 +114,10 @@ class ParticleFilter(FilterLoop):
     def _draw(self, frame: Frame, n: int) -> Particles:
         """The strategy's proposal, or phi_cand when it has none."""
         prop = self.strategy.propose(frame, n, self.rng, self.likelihood)
-        return prop if prop is not None else self.candidates.sample(n, frame, self.rng)
+        if prop is not None:
+            return prop
+        est_t = None if self.estimate is None else self.estimate[1]
+        return self.candidates.sample(n, frame, self.rng, est_t)
 
     def _assign(self, particles: Particles) -> None:
         self.R, self.t = particles

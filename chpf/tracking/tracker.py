@@ -141,6 +141,7 @@ class Tracker:
             depth_window=cand.depth_window,
             use_depth=rgbd,
             uv_fraction=cand.box_uv_fraction,
+            occluded_box=cand.occluded_box,
             rotations=None
             if cand.rotations == "uniform"
             else CodebookRotations(self.likelihood, cand.temperature, cand.uniform_share),

@@ -158,3 +158,25 @@ def test_codebook_rotations_refuse_bad_settings():
         CodebookRotations(_FixedScorer(), temperature=0.0)
     with pytest.raises(ConfigError):
         CodebookRotations(_FixedScorer(), uniform_share=1.5)
+
+
+def test_a_detection_inside_the_belief_box_is_read_as_its_visible_part():
+    """occluded_box: a detection inside the belief's projected box and smaller by more than
+    10 % gives the belief's box (candidates at the believed place and scale); a detection as
+    large as the belief, or elsewhere, stays the box; off, the detection is always the box."""
+    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+    sampler = CandidateSampler(box_extent=0.2, occluded_box=True)
+    t = np.array([0.0, 0.0, 1.0])  # belief box: 60 px square centred on (160, 120)
+    bel = sampler.belief_box(t, K)
+    assert bel == pytest.approx((130.0, 90.0, 60.0, 60.0))
+    half = Frame(np.zeros((240, 320, 3), np.uint8), None, K, (130.0, 100.0, 40.0, 50.0))
+    assert sampler.box_for(half, t) == pytest.approx(bel)
+    whole = Frame(half.rgb, None, K, (131.0, 91.0, 58.0, 58.0))
+    elsewhere = Frame(half.rgb, None, K, (10.0, 10.0, 30.0, 30.0))
+    assert sampler.box_for(whole, t) == whole.box and sampler.box_for(elsewhere, t) == elsewhere.box
+    assert sampler.box_for(half, None) == half.box
+    off = CandidateSampler(box_extent=0.2)
+    assert off.box_for(half, t) == half.box
+    _, ts = sampler.sample(200, half, np.random.default_rng(0), t)
+    u = K[0, 0] * ts[:, 0] / ts[:, 2] + K[0, 2]
+    assert u.min() > 130.0 and u.max() < 190.0 and u.mean() == pytest.approx(160.0, abs=3.0)
