@@ -143,9 +143,9 @@ def _positive(name: str, value: int | None, minimum: int = 1) -> None:
 
 def _cmd_samples(args: argparse.Namespace) -> int:
     from chpf.crops import CropSpec
-    from chpf.objects import get_object
     from data_gen.compose import ComposerContext
     from data_gen.generate import generate
+    from data_gen.mesh_checks import checked_object
 
     _positive("--n", args.n)
     _positive("--workers", args.workers)
@@ -162,7 +162,7 @@ def _cmd_samples(args: argparse.Namespace) -> int:
             "shards.samples_per_shard": args.samples_per_shard,
         },
     )
-    obj = get_object(args.object, unit=args.unit, allow_size=args.allow_size)
+    obj = checked_object(args.object, unit=args.unit, allow_size=args.allow_size)
     spec = CropSpec.for_object(obj.diameter, cfg["crop"]["size"])
     ctx = ComposerContext(
         obj=obj,
@@ -192,12 +192,12 @@ def _cmd_samples(args: argparse.Namespace) -> int:
 
 def _cmd_pool(args: argparse.Namespace) -> int:
     from chpf.crops import CropSpec
-    from chpf.objects import get_object
     from data_gen.compose import ComposerContext, build_pools
+    from data_gen.mesh_checks import checked_object
 
     _positive("--workers", args.workers)
     cfg = _config(args, {"crop.size": args.size, "codebook.size": args.codebook_size})
-    obj = get_object(args.object, unit=args.unit, allow_size=args.allow_size)
+    obj = checked_object(args.object, unit=args.unit, allow_size=args.allow_size)
     spec = CropSpec.for_object(obj.diameter, cfg["crop"]["size"])
     ctx = ComposerContext(
         obj, spec, cfg, str(args.cache_dir) if args.cache_dir else None, args.kind

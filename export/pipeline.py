@@ -20,7 +20,8 @@ from chpf.bundle import FORMAT_VERSION, ObjectInfo, check_crop_size
 from chpf.crops import CropSpec
 from chpf.errors import BundleError
 from chpf.hashing import sha256_file
-from chpf.objects import ObjectModel, get_object, object_fingerprint
+from chpf.objects import ObjectModel, object_fingerprint
+from data_gen.mesh_checks import checked_object
 from export import onnx_export as ox
 from export.codebook import build_codebook, render_pool
 from export.config import ExportConfig
@@ -154,7 +155,7 @@ def export_bundle(
     model = (
         obj
         if isinstance(obj, ObjectModel)
-        else get_object(str(obj), unit=cfg.unit, allow_size=allow_size)
+        else checked_object(str(obj), unit=cfg.unit, allow_size=allow_size)
     )
     if cfg.obj_id is not None:
         model = replace(model, obj_id=int(cfg.obj_id))
