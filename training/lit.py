@@ -320,6 +320,48 @@ def manifest_symmetries(object_info: Mapping[str, Any] | None) -> tuple[list, li
     return disc, cont
 
 
+def val_codebook_cache(
+    root: str | os.PathLike, manifest: Mapping[str, Any], k: int
+) -> tuple[Path, str]:
+    """(path, key) of the cached validation codebook of ``k`` entries for a data folder's
+    ``manifest`` under the run folder ``root``; the key hashes the object's fingerprint, the
+    crop spec and ``k``."""
+    import hashlib
+    import json
+
+    parts = {
+        "object_fingerprint": manifest.get("object_fingerprint"),
+        "crop": manifest.get("crop"),
+        "k": int(k),
+    }
+    key = hashlib.sha1(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:16]
+    return Path(root) / "val_codebook" / f"k{int(k)}_{key}.npz", key
+
+
+def ensure_val_codebook(
+    path: str | os.PathLike, key: str, data_dir: str | os.PathLike, k: int
+) -> bool:
+    """Render ``training.codebook.render_eval_codebook(data_dir, k)`` into ``path`` unless a
+    codebook with this ``key`` is there already; a file with another key (or unreadable) is
+    rebuilt. True when it rendered."""
+    from training.codebook import render_eval_codebook, save_codebook
+
+    path = Path(path)
+    if path.is_file():
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                if "cache_key" in z.files and str(z["cache_key"].reshape(-1)[0]) == key:
+                    return False
+        except Exception:
+            pass
+        warnings.warn(f"{path}: validation codebook of other settings: rebuilt", stacklevel=2)
+    arrays = render_eval_codebook(data_dir, int(k), progress=False)
+    arrays["cache_key"] = np.asarray(key)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_codebook(path, arrays)
+    return True
+
+
 # ----------------------------------------------------------------------------- autoencoder
 
 
@@ -337,8 +379,14 @@ class AELitModule(_ChpfModule):
         input_jitter: extra colour jitter on the (already augmented) inputs, 0 = off.
         channels_last: channels_last memory format (faster convolutions on CPU).
         val_codebook: npz from ``python -m training.codebook`` (rotations + clean crops); the
-            validation retrieval error is measured against it. Without it the clean targets
-            of the validation set serve as the codebook (an optimistic proxy).
+            validation retrieval error is measured against it.
+        val_codebook_size: without ``val_codebook``: entries of a codebook of uniform
+            orientations rendered from the data's object and crop spec (``training.codebook``)
+            and cached as ``{trainer.default_root_dir}/val_codebook/k{K}_{key}.npz``, the key
+            made of the object's fingerprint, the crop spec and K (a cache whose contents do
+            not match its key is rebuilt); rank 0 renders under DDP. 0: the clean targets of
+            the validation set serve as the codebook -- each crop then finds its own target,
+            so the figure is optimistic (near 0) and says little.
         val_codebook_batch: crops per forward pass when embedding the codebook.
         empty_weight: weight of ``empty_separation`` in the loss (0 = off); it keeps the
             embeddings of empty crops (``chpf-gen-data`` ``empty_crops``) away from every view.
@@ -366,6 +414,7 @@ class AELitModule(_ChpfModule):
         input_jitter: float = 0.0,
         channels_last: bool = True,
         val_codebook: str | None = None,
+        val_codebook_size: int = 4096,
         val_codebook_batch: int = 256,
         empty_weight: float = 1.0,
         empty_margin: float = 0.3,
@@ -379,6 +428,8 @@ class AELitModule(_ChpfModule):
         super().__init__(locals())
         if not 0.0 < bootstrap_ratio <= 1.0:
             raise ConfigError(f"bootstrap_ratio must be in (0, 1], got {bootstrap_ratio}")
+        if val_codebook_size < 0:
+            raise ConfigError(f"val_codebook_size must be >= 0, got {val_codebook_size}")
         self.model = Autoencoder(encoder)
         if channels_last:
             self.model.to(memory_format=torch.channels_last)
@@ -391,9 +442,24 @@ class AELitModule(_ChpfModule):
 
     def setup(self, stage: str) -> None:
         super().setup(stage)
-        if self.hparams.val_codebook and self._val_cb is None:
-            cb = load_codebook_npz(self.hparams.val_codebook, self._model_size())
-            self._val_cb = cb
+        if self._val_cb is not None:
+            return
+        if self.hparams.val_codebook:
+            self._val_cb = load_codebook_npz(self.hparams.val_codebook, self._model_size())
+            return
+        k = int(self.hparams.get("val_codebook_size", 0) or 0)
+        dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
+        if k > 0 and dm is not None and stage in ("fit", "validate"):
+            self._val_cb = self._rendered_codebook(dm, k)
+
+    def _rendered_codebook(self, dm: Any, k: int) -> dict[str, np.ndarray]:
+        """The cached uniform validation codebook of ``val_codebook_size`` (see the class
+        docstring): rank 0 renders it when missing or stale, the other ranks wait and load."""
+        path, key = val_codebook_cache(self.trainer.default_root_dir, dm.manifest, k)
+        if self.trainer.is_global_zero:
+            ensure_val_codebook(path, key, dm.data_dir, k)
+        self.trainer.strategy.barrier("val_codebook")
+        return load_codebook_npz(path, self._model_size())
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.model(x)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 
@@ -35,13 +36,26 @@ def pattern(R: np.ndarray, size: int) -> np.ndarray:
     return (127.5 + 127.5 * np.sin(phase)).astype(np.uint8)
 
 
+@functools.lru_cache(maxsize=1)
+def _box_fingerprint() -> str:
+    from chpf.objects import builtin_object, object_fingerprint
+
+    return object_fingerprint(builtin_object(FIXTURE_OBJECT))
+
+
+FIXTURE_OBJECT = "box"
+"""The object the fabricated manifests name (their images are patterns, not renders): a
+built-in, so that what renders from a data folder's object (the AE's validation codebook)
+works."""
+
+
 def write_shards(
     out: Path, kind: str, n: int, size: int = 16, per_shard: int = 16, seed: int = 0
 ) -> Path:
     """Write ``n`` fabricated samples of ``kind`` ('ae' or 'pairs') into ``out``."""
     rng = np.random.default_rng(seed)
     crop = {"size": size, "render_distance": 0.4, "focal": 3.6 * size}
-    man = make_manifest(kind, "fixture", "0" * 40, crop, seed, {}, per_shard, n)
+    man = make_manifest(kind, FIXTURE_OBJECT, _box_fingerprint(), crop, seed, {}, per_shard, n)
     out.mkdir(parents=True, exist_ok=True)
     (out / "manifest.json").write_text(json.dumps(man))
     for entry in man["shards"]:
