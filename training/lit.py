@@ -256,11 +256,30 @@ class _ChpfModule(pl.LightningModule):
         return torch.cat(out).numpy()
 
     def _gather_cat(self, chunks: list[torch.Tensor]) -> np.ndarray:
-        """Concatenate per-step tensors and gather them from all ranks (numpy)."""
-        x = torch.cat(chunks) if chunks else torch.zeros(0)
-        if self._trainer is not None and self.trainer.world_size > 1:
-            x = self.all_gather(x).flatten(0, 1)
-        return x.detach().cpu().numpy()
+        """Concatenate per-step tensors and gather them from all ranks (numpy), rank order.
+
+        Ranks may hold different numbers of rows (empty crops are left out of retrieval, the
+        last validation batch is short, a rank may have none): the shapes are exchanged first,
+        each rank pads to the longest, and the padding is cut off after the gather."""
+        x = torch.cat(chunks) if chunks else None
+        if self._trainer is None or self.trainer.world_size <= 1:
+            return (x if x is not None else torch.zeros(0)).detach().cpu().numpy()
+        import torch.distributed as dist
+
+        shapes: list[Any] = [None] * self.trainer.world_size
+        mine = None if x is None else (tuple(x.shape), str(x.dtype).removeprefix("torch."))
+        dist.all_gather_object(shapes, mine)
+        known = [s for s in shapes if s is not None]
+        if not known:
+            return np.zeros(0, np.float32)
+        tail, dtype = known[0][0][1:], getattr(torch, known[0][1])
+        longest = max(s[0][0] for s in known)
+        pad = torch.zeros((longest, *tail), dtype=dtype, device=self.device)
+        if x is not None:
+            pad[: x.shape[0]] = x.detach().to(self.device)
+        gathered = self.all_gather(pad)  # (world, longest, ...)
+        rows = [gathered[r, : s[0][0]] for r, s in enumerate(shapes) if s is not None]
+        return torch.cat(rows).detach().cpu().numpy()
 
 
 def _fp32(*tensors: torch.Tensor) -> tuple[torch.Tensor, ...]:
