@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 
 from chpf.config_schema import to_dict
-from chpf.errors import ConfigError, DatasetError
+from chpf.errors import ChpfError, ConfigError, DatasetError
 from data_gen.config import default_config
 from training.batch_augment import BatchAugment, augment_batch
 from training.checkpoints import (
@@ -475,9 +475,18 @@ class AELitModule(_ChpfModule):
         """The cached uniform validation codebook of ``val_codebook_size`` (see the class
         docstring): rank 0 renders it when missing or stale, the other ranks wait and load."""
         path, key = val_codebook_cache(self.trainer.default_root_dir, dm.manifest, k)
+        failed = None
         if self.trainer.is_global_zero:
-            ensure_val_codebook(path, key, dm.data_dir, k)
-        self.trainer.strategy.barrier("val_codebook")
+            try:
+                ensure_val_codebook(path, key, dm.data_dir, k)
+            except ChpfError as err:  # told to every rank: none waits for a codebook forever
+                failed = str(err)
+        failed = self.trainer.strategy.broadcast(failed, src=0)
+        if failed:
+            raise DatasetError(
+                f"{failed} (rendering the validation codebook: give --model.val_codebook FILE "
+                "from python -m training.codebook --object MESH, or --model.val_codebook_size 0)"
+            )
         return load_codebook_npz(path, self._model_size())
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -73,3 +73,18 @@ def test_cache_of_other_settings_is_rebuilt(ae_dir: Path, tmp_path: Path, monkey
     assert any("other settings" in str(w.message) for w in got)
     with np.load(path) as z:
         assert str(z["cache_key"].reshape(-1)[0]) == key and len(z["rotations"]) == 8
+
+
+def test_unrenderable_object_is_one_line(ae_dir: Path, tmp_path: Path, monkeypatch) -> None:
+    """A data folder whose object cannot be found: DatasetError naming the way out."""
+    import json
+
+    from chpf.errors import DatasetError
+
+    man = json.loads((ae_dir / "manifest.json").read_text())
+    man["object"] = "gone.ply"
+    (ae_dir / "manifest.json").write_text(json.dumps(man))
+    monkeypatch.chdir(tmp_path)
+    args = ["ae", "--config", AE_CFG, "--data.data_dir", str(ae_dir)]
+    with pytest.raises(DatasetError, match=r"--model.val_codebook_size 0\)$"):
+        main([*args, "--trainer.default_root_dir", str(tmp_path / "run")])
