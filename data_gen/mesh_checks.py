@@ -227,8 +227,9 @@ def declared_symmetries(path: str | Path) -> tuple[list[Any], list[dict[str, Any
 
 def checked_object(name_or_path: str, unit: str = "m", allow_size: bool = False) -> ObjectModel:
     """``chpf.objects.get_object`` for the commands that start hours of work: a built-in object
-    as it is, a mesh file through ``check_mesh`` (symmetries from a ``models_info.json`` beside
-    it, as ``declared_symmetries``)."""
+    as it is, a mesh file through ``check_mesh`` (checked against the symmetries of a
+    ``models_info.json`` beside it, ``declared_symmetries``; returned without symmetries, as
+    ``get_object`` gives it)."""
     from chpf.objects import BUILTIN_OBJECTS, get_object
 
     if name_or_path in BUILTIN_OBJECTS:
@@ -238,4 +239,9 @@ def checked_object(name_or_path: str, unit: str = "m", allow_size: bool = False)
         return get_object(name_or_path, unit=unit, allow_size=allow_size)
     sym = declared_symmetries(p)
     disc, cont = sym if sym is not None else ([], [])
-    return check_mesh(p, unit, disc, cont, allow_size=allow_size)
+    obj = check_mesh(p, unit, disc, cont, allow_size=allow_size)
+    # the declared symmetries serve the check only: the other tools that load a data folder's
+    # mesh (get_object: training.codebook, training.evaluate) give a mesh file none, and the
+    # object must be the same everywhere
+    obj.symmetries_discrete, obj.symmetries_continuous = [], []
+    return obj
