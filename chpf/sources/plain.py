@@ -35,9 +35,7 @@ def open_plain(
     several = not isinstance(obj_id, int)
     ids = list(obj_id) if several else [obj_id]  # type: ignore[arg-type]
     inits: list[Box | None] = (
-        [None] * len(ids)
-        if init_box is None
-        else (list(init_box) if several else [init_box])  # type: ignore[list-item]
+        [None] * len(ids) if init_box is None else (list(init_box) if several else [init_box])  # type: ignore[list-item]
     )
     assert len(inits) == len(ids), "one init box per object"
     per = {

@@ -37,7 +37,13 @@ class VideoFile:
     SkippedFrameWarning (unreadable frames: once per run).
     """
 
-    def __init__(self, path: str | Path, camera: Camera, boxes: PlainBoxes | dict[int, PlainBoxes], fps: float) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        camera: Camera,
+        boxes: PlainBoxes | dict[int, PlainBoxes],
+        fps: float,
+    ) -> None:
         self.path = Path(path)
         if not self.path.is_file():
             raise SourceError(f"{self.path}: video file not found")
