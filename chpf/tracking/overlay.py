@@ -216,7 +216,7 @@ class OverlayWriter:
             label = ""
             if several:
                 name = self.names.get(obj.obj_id, "")
-                label = f"{obj.obj_id}" + (f" {name}" if name else "") + ("" if ok else " none")
+                label = f"obj {obj.obj_id}" + (f" {name}" if name else "") + ("" if ok else " none")
             elif not ok:
                 title += "  no estimate"
             drawn.append(
