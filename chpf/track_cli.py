@@ -192,7 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--poses",
         type=Path,
         default=None,
-        help="stream one JSON line per frame and method (R, t in metres, alpha, ESS) to this file",
+        help="stream one JSON line per frame, method and object (R, t in metres, alpha, ESS) "
+        "to this file",
     )
     p.add_argument("--config", type=Path, default=None, help="tracking options YAML")
     p.add_argument(
