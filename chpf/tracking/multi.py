@@ -11,9 +11,11 @@ Example::
 Each object's Tracker steps the same frame in turn (the frame is read once by the caller);
 objects are named by their obj_id (each bundle's own, or ``obj_ids``), which must differ.
 ``boxes``: None (no box for any object: each tracker predicts or uses its estimate), a list
-with one box (or None) per object in order, or a dict {obj_id: box}. Seeds: with one object
-its tracker gets the seed as it is (the same poses as a lone Tracker); with several, object k
-gets (seed..., k), so that no two objects share a random stream.
+with one box (or None) per object in order, or a dict {obj_id: box}. Seeds: every object's
+tracker gets the seed as it is, so each object's poses are those a lone Tracker with that seed
+gives on the same frames and boxes: adding an object changes no other object's results (the
+filters share nothing; two trackers of one bundle draw the same random numbers, which is
+harmless as they track different objects).
 """
 
 from __future__ import annotations
@@ -29,10 +31,6 @@ from chpf.bundle import Bundle
 from chpf.errors import ConfigError
 from chpf.tracking.tracker import Tracker
 from chpf.tracking.types import Box, TrackResult
-
-
-def _seed_tuple(seed: int | Sequence[int]) -> tuple[int, ...]:
-    return (int(seed),) if isinstance(seed, (int, np.integer)) else tuple(int(s) for s in seed)
 
 
 class MultiTracker:
@@ -106,11 +104,8 @@ class MultiTracker:
         docstring)."""
         if seed is not None:
             self.seed = seed
-        if len(self.trackers) == 1:
-            self.trackers[0].reset(self.seed)
-            return
-        for k, t in enumerate(self.trackers):
-            t.reset((*_seed_tuple(self.seed), k))
+        for t in self.trackers:
+            t.reset(self.seed)
 
     def _boxes(self, boxes: Sequence[Box | None] | Mapping[int, Box | None] | None) -> list:
         if boxes is None:

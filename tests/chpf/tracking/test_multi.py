@@ -82,27 +82,29 @@ def two_object_dataset(tmp_path, n: int = N):
 # --- the Python API ---------------------------------------------------------------------------
 
 
-def test_multitracker_steps_every_object_and_one_object_matches_a_lone_tracker(bundle):
+def test_multitracker_steps_every_object_as_lone_trackers_would(bundle):
     rgb = [read_rgb(f) for f in demo_frames(3)]
     box = tuple(demo_box(1))
+    other = (20.0, 60.0, 60.0, 80.0)
     cfg = {"filter": {"n_particles": 10}}
-    lone = Tracker(bundle, seed=3, config=cfg)
-    one = MultiTracker([Tracker(bundle, seed=3, config=cfg)])
-    assert one.obj_ids == [2]
+    lone = [Tracker(bundle, seed=3, config=cfg) for _ in range(2)]
+    two = MultiTracker([Tracker(bundle, seed=3, config=cfg) for _ in range(2)], [2, 5])
     for i, img in enumerate(rgb):
-        b = box if i == 0 else None
-        r = lone.step(img, K=DEMO_K, box=b)
-        (m,) = one.step(img, K=DEMO_K, boxes=[b])
-        np.testing.assert_array_equal(r.t, m.t)  # one object: the same seed, the same poses
+        boxes = [box, other] if i == 0 else [None, None]
+        alone = [t.step(img, K=DEMO_K, box=b) for t, b in zip(lone, boxes, strict=True)]
+        together = two.step(img, K=DEMO_K, boxes=boxes)
+        for a, b in zip(alone, together, strict=True):  # each object: a lone tracker's poses
+            np.testing.assert_array_equal(a.t, b.t)
+            np.testing.assert_array_equal(a.R, b.R)
+    assert not np.array_equal(together[0].t, together[1].t)
 
     multi = MultiTracker.from_bundles(
         [bundle, bundle], obj_ids=[2, 5], n_particles=10, config=None, seed=3
     )
     assert multi.obj_ids == [2, 5] and len(multi) == 2
     assert multi.trackers[0].bundle is multi.trackers[1].bundle  # loaded once
-    out = multi.step(rgb[0], K=DEMO_K, boxes={2: box, 5: box})
-    assert len(out) == 2 and all(r.ok for r in out)
-    assert not np.array_equal(out[0].t, out[1].t)  # each object its own random stream
+    out = multi.step(rgb[0], K=DEMO_K, boxes={5: box})
+    assert len(out) == 2 and [r.ok for r in out] == [False, True]  # no box, no state for 2
     out = multi.step(rgb[1], K=DEMO_K)  # no boxes at all
     assert len(out) == 2 and len(multi.last_ms) == 2 and min(multi.last_ms) > 0
     with pytest.raises(ConfigError, match="1 boxes for 2 objects"):
@@ -110,7 +112,7 @@ def test_multitracker_steps_every_object_and_one_object_matches_a_lone_tracker(b
     with pytest.raises(ConfigError, match=r"obj_id\(s\) \[7\]"):
         multi.step(rgb[2], K=DEMO_K, boxes={7: box})
     with pytest.raises(ConfigError, match=r"obj_id\(s\) \[2\] given to more than one"):
-        MultiTracker([lone, Tracker(bundle, config=cfg)])
+        MultiTracker(lone)
 
 
 # --- chpf-track --bundle A --bundle B --------------------------------------------------------
@@ -148,6 +150,17 @@ def test_two_bundles_on_bop_data_track_each_obj_id_with_per_object_outputs(tmp_p
         (i, m, o) for i in range(1, N + 1) for m in ("chpf", "srl") for o in (2, TWIN)
     ]
     assert count_video_frames(out / "o_chpf.avi") == N  # both objects on each frame
+
+    # obj 2 tracked alone gives the same poses as with TWIN beside it (boxes and seeds per object)
+    alone = tmp_path / "alone"
+    _run(capsys, "--bundle", s, "--dataset", root, "--out", alone, "--method", "chpf,srl")
+    for m in ("chpf", "srl"):
+        lone = read_results_csv(alone / f"{m}_two-test.csv")
+        both = [r for r in read_results_csv(out / f"{m}_two-test.csv") if r.obj_id == 2]
+        assert [r.key for r in lone] == [r.key for r in both]
+        for a, b in zip(lone, both, strict=True):
+            np.testing.assert_allclose(a.t, b.t, atol=1e-9)
+            np.testing.assert_allclose(a.R, b.R, atol=1e-9)
 
     # a rerun with the same settings resumes: nothing new in the CSVs or the logs
     _run(capsys, *argv)
