@@ -9,6 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
+import chpf.tracking
 from chpf.bop import read_results_csv, read_rgb
 from chpf.bundle import Bundle
 from chpf.errors import ConfigError
@@ -102,6 +103,7 @@ def test_multitracker_steps_every_object_as_lone_trackers_would(bundle):
         [bundle, bundle], obj_ids=[2, 5], n_particles=10, config=None, seed=3
     )
     assert multi.obj_ids == [2, 5] and len(multi) == 2
+    assert chpf.tracking.MultiTracker is MultiTracker
     assert multi.trackers[0].bundle is multi.trackers[1].bundle  # loaded once
     out = multi.step(rgb[0], K=DEMO_K, boxes={5: box})
     assert len(out) == 2 and [r.ok for r in out] == [False, True]  # no box, no state for 2
@@ -178,6 +180,8 @@ def test_bop_refusals_name_the_bundle_and_the_rule(tmp_path, capsys, monkeypatch
     assert "--obj-id given 1 time(s) for 2 --bundle" in line
     line = console_error(cli, capsys, monkeypatch, *base, "--obj-id", "2", "--obj-id", "8")
     assert "pass --obj-id N" in line and "[1, 2, 4, 9]" in line
+    line = console_error(cli, capsys, monkeypatch, "--demo", "--bundle", s, "--bundle", s)
+    assert "--demo tracks one object" in line
     assert not (tmp_path / "o").exists()
 
 
