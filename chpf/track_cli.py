@@ -3,9 +3,11 @@ and the baselines.
 
 Usage::
 
-    chpf-track --bundle B --dataset BOP_DIR [--split test] [--scenes 1,2] [--detections JSON]
-    chpf-track --bundle B (--images DIR [--depth DIR] [--depth-scale MM] | --video FILE)
-               --camera FILE (--init-box x,y,w,h | --detections CSV_OR_JSON) [--fps 30]
+    chpf-track --bundle B [--bundle B2 ...] --dataset BOP_DIR [--obj-id N ...] [--split test]
+               [--scenes 1,2] [--detections JSON]
+    chpf-track --bundle B [--bundle B2 ...] (--images DIR [--depth DIR] [--depth-scale MM] |
+               --video FILE) --camera FILE (--init-box x,y,w,h ... | --detections CSV_OR_JSON)
+               [--fps 30]
     chpf-track --demo [--bundle B] [--out DIR]
     common: [--method chpf|srl|augmcl|annealing|e2e|poserbpf|poserbpf++|fixed|none|all|a,b]
             [--modality rgb|rgbd] [--out DIR] [--config YAML] [--seed 0] [--set key=value ...]
@@ -19,6 +21,16 @@ time); and, when the dataset has ground truth, prints the ADD / ADD-S AUC table.
 and ``--poses`` write the estimates drawn on the frames and one JSON line per frame
 (``chpf.tracking.overlay``, ``chpf.tracking.pose_stream``). The first output line says where
 the detection boxes come from.
+
+Several objects: ``--bundle`` repeated tracks each bundle's object through the same frames
+(each frame is read once; ``chpf.tracking.multi.MultiTracker``). On a BOP dataset each bundle
+tracks its obj_id (``--obj-id``, if given, once per ``--bundle``, in the same order); on an
+image folder or video ``--init-box`` is given once per ``--bundle``, in order (or a BOP
+detections JSON, matched by obj_id). The obj_ids must differ (``--obj-id`` tells two copies of
+a bundle apart). The result CSV of a method holds every object's rows (BOP CSVs carry the
+obj_id); logs are per object (``log_METHOD_objN.csv``), and so are the plots
+(``plots/objN/``), the tables' rows (``METHOD obj N``), the ``--poses`` lines and the bars of
+the ``--overlay``, which draws every object on each frame.
 """
 
 from __future__ import annotations
@@ -26,7 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +57,7 @@ from chpf.sources.frame import FrameSource
 from chpf.tracking.boxes import make_box_source
 from chpf.tracking.config import MODALITIES, make_config
 from chpf.tracking.methods import method_names
+from chpf.tracking.multi import MultiTracker
 from chpf.tracking.overlay import check_overlay_target
 from chpf.tracking.run_dataset import (
     DEFAULT_FPS,
@@ -80,8 +93,8 @@ def parse_methods(text: str) -> list[str]:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="chpf-track",
-        description="Track one object through a BOP dataset, an image folder or a video with "
-        "CH-PF and baselines.",
+        description="Track one object (or several: --bundle repeated) through a BOP dataset, an "
+        "image folder or a video with CH-PF and baselines.",
     )
     p.add_argument(
         "--demo",
@@ -89,13 +102,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="track the shipped short occluded sequence of the shipped bundle's object with "
         "CH-PF, CH-RBPF, SRL and PoseRBPF",
     )
-    p.add_argument("--bundle", type=Path, help="model bundle folder (default for --demo: shipped)")
+    p.add_argument(
+        "--bundle",
+        type=Path,
+        action="append",
+        default=None,
+        help="model bundle folder (default for --demo: shipped); repeat it to track several "
+        "objects at once",
+    )
     p.add_argument("--dataset", type=Path, help="BOP dataset root")
     p.add_argument(
         "--obj-id",
         type=int,
+        action="append",
         default=None,
-        help="the dataset's obj_id of the bundle's object (default: the bundle's own)",
+        help="the dataset's obj_id of the bundle's object (default: the bundle's own); with "
+        "several --bundle, once per bundle in the same order",
     )
     p.add_argument("--split", default="test", help="split folder (default: test)")
     p.add_argument("--scenes", type=scene_list, default=None, help="e.g. 48,49 (default: all)")
@@ -122,9 +144,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--init-box",
         type=parse_box,
+        action="append",
         default=None,
         metavar="X,Y,W,H",
-        help="with --images / --video: the object's box in the first frame (pixels)",
+        help="with --images / --video: the object's box in the first frame (pixels); with "
+        "several --bundle, once per bundle in the same order",
     )
     p.add_argument(
         "--fps",
@@ -168,7 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--poses",
         type=Path,
         default=None,
-        help="stream one JSON line per frame and method (R, t in metres, alpha, ESS) to this file",
+        help="stream one JSON line per frame, method and object (R, t in metres, alpha, ESS) "
+        "to this file",
     )
     p.add_argument("--config", type=Path, default=None, help="tracking options YAML")
     p.add_argument(
@@ -197,8 +222,8 @@ class TrackInput:
     """What a run tracks: the (scene_id, frames) sequences, named ``name`` / ``split`` in the
     result files; ``settings``: the input part of track_settings; ``boxes``: the first output
     line; ``box_origin`` names the boxes in warnings; ``what`` says what is tracked; ``points``
-    (M,3) for the per-frame errors (None without ground truth); ``score``: the AUC table of the
-    runs, or None (then ``no_score`` says why)."""
+    {obj_id: (M,3)} for the per-frame errors (empty without ground truth); ``score``: the AUC
+    table of the runs, or None (then ``no_score`` says why)."""
 
     name: str
     split: str
@@ -208,7 +233,7 @@ class TrackInput:
     box_origin: str
     what: str
     fps: float
-    points: np.ndarray | None = None
+    points: dict[int, np.ndarray] = field(default_factory=dict)
     score: Callable[[dict[str, MethodRun]], str] | None = None
     no_score: str = ""
 
@@ -224,17 +249,27 @@ def _dataset_obj_ids(ds: BopDataset, split: str, scenes: list[int]) -> set[int]:
 
 
 def auc_table(dataset: Path, runs: dict[str, MethodRun], split: str, scenes: list[int]) -> str:
-    """ADD / ADD-S AUC per method (chpf.eval_cli.evaluate) plus speed, as a text table."""
+    """ADD / ADD-S AUC per method (and object: a run with an obj_id is scored on that object's
+    rows of its result CSV; chpf.eval_cli.evaluate) plus speed, as a text table."""
     from chpf.eval_cli import evaluate, format_auc
 
-    head = f"{'method':<11} {'frames':>6} {'missing':>7} {'ADD AUC':>8} {'ADD-S AUC':>9} {'fps':>6}"
+    w = max([11, *(len(m) + 1 for m in runs)])
+    head = (
+        f"{'method':<{w}} {'frames':>6} {'missing':>7} {'ADD AUC':>8} {'ADD-S AUC':>9} {'fps':>6}"
+    )
     lines = [head, "-" * len(head)]
     for m, run in runs.items():
         rows = read_results_csv(run.results)
-        rep = evaluate(dataset, rows, split=split, scenes=scenes)["all"]
+        if run.obj_id is not None:
+            rows = [r for r in rows if r.obj_id == run.obj_id]
+        rep = evaluate(dataset, rows, split=split, scenes=scenes)
+        rep = rep["all"] if run.obj_id is None else rep["objects"].get(str(run.obj_id))
+        if rep is None:  # no row of the object at all
+            lines.append(f"{m:<{w}} {'-':>6} {'-':>7} {'-':>8} {'-':>9} {'-':>6}")
+            continue
         fps = "-" if run.frames == 0 else f"{run.fps:.1f}"
         lines.append(
-            f"{m:<11} {rep['n']:>6d} {rep['n_missing']:>7d} {format_auc(rep['add_auc']):>8} "
+            f"{m:<{w}} {rep['n']:>6d} {rep['n_missing']:>7d} {format_auc(rep['add_auc']):>8} "
             f"{format_auc(rep['adds_auc']):>9} {fps:>6}"
         )
     return "\n".join(lines)
@@ -243,7 +278,10 @@ def auc_table(dataset: Path, runs: dict[str, MethodRun], split: str, scenes: lis
 def stage_table(runs: dict[str, MethodRun]) -> str:
     """Mean ms per stage of the newly tracked frames, and the non-network share."""
     stages = ["crop", "encode", "ch_encode", "lookup", "head", "depth", "estimate", "resample"]
-    head = f"{'method':<11}" + "".join(f" {s:>9}" for s in stages) + f" {'total':>8} {'non-net':>8}"
+    w = max([11, *(len(m) + 1 for m in runs)])
+    head = (
+        f"{'method':<{w}}" + "".join(f" {s:>9}" for s in stages) + f" {'total':>8} {'non-net':>8}"
+    )
     lines = [head]
     for m, run in runs.items():
         if run.frames == 0:
@@ -253,17 +291,39 @@ def stage_table(runs: dict[str, MethodRun]) -> str:
         net = sum(mean.get(s, 0.0) for s in NETWORK_STAGES)
         share = (total - net) / total if total > 0 else float("nan")
         cells = "".join(f" {mean[s]:>9.2f}" if s in mean else f" {'-':>9}" for s in stages)
-        lines.append(f"{m:<11}{cells} {total:>8.1f} {share:>8.0%}")
+        lines.append(f"{m:<{w}}{cells} {total:>8.1f} {share:>8.0%}")
     return "\n".join(lines)
 
 
+def target_obj_ids(args: argparse.Namespace, bundles: list[Bundle]) -> list[int]:
+    """The obj_ids tracked, one per bundle: --obj-id (once per --bundle, in order), else each
+    bundle's own. ConfigError on a count mismatch or an obj_id given to two bundles."""
+    if args.obj_id is None:
+        ids = [b.obj_info.obj_id for b in bundles]
+    elif len(args.obj_id) != len(bundles):
+        raise ConfigError(
+            f"--obj-id given {len(args.obj_id)} time(s) for {len(bundles)} --bundle: give it "
+            "once per --bundle, in the same order (or not at all: each bundle's own obj_id)"
+        )
+    else:
+        ids = [int(o) for o in args.obj_id]
+    dup = sorted({o for o in ids if ids.count(o) > 1})
+    if dup:
+        raise ConfigError(
+            f"obj_id {dup[0]} is tracked by more than one --bundle; give each its own with "
+            "--obj-id N once per --bundle, in order"
+        )
+    return ids
+
+
 def target_obj_id(args: argparse.Namespace, bundle: Bundle) -> int:
-    """The obj_id tracked: --obj-id, else the bundle's own."""
-    return bundle.obj_info.obj_id if args.obj_id is None else int(args.obj_id)
+    """The obj_id tracked with one bundle: --obj-id, else the bundle's own."""
+    return target_obj_ids(args, [bundle])[0]
 
 
-def bop_input(args: argparse.Namespace, dataset: Path, bundle: Bundle) -> TrackInput:
-    """The TrackInput of a BOP dataset (--dataset, --demo): its scenes, boxes, ground truth."""
+def bop_input(args: argparse.Namespace, dataset: Path, bundles: list[Bundle]) -> TrackInput:
+    """The TrackInput of a BOP dataset (--dataset, --demo): its scenes, boxes, ground truth;
+    each bundle is checked against the dataset's object of its obj_id."""
     ds = BopDataset(dataset)
     scenes = ds.scene_ids(args.split)
     if args.scenes is not None:
@@ -271,23 +331,26 @@ def bop_input(args: argparse.Namespace, dataset: Path, bundle: Bundle) -> TrackI
         if missing:
             raise DatasetError(f"{ds.split_path(args.split)}: no scene(s) {missing}")
         scenes = [s for s in scenes if s in set(args.scenes)]
-    boxes = make_box_source(ds, args.split, args.detections, args.seed)
-    obj_id = target_obj_id(args, bundle)
+    obj_ids = target_obj_ids(args, bundles)
     ids = _dataset_obj_ids(ds, args.split, scenes)
-    if ids and obj_id not in ids:
-        what = f"obj_id {obj_id}" + ("" if args.obj_id is None else " by --obj-id")
-        raise BundleError(
-            f"{bundle.path}: bundle is for object {bundle.obj_info.name!r} ({what}) but "
-            f"{dataset} has obj_ids {sorted(ids)}; pass --obj-id N to track the dataset's "
-            "object N with it"
-        )
-    bundle.check_dataset(ds, obj_id)
-    points, score = None, None
+    for bundle, obj_id in zip(bundles, obj_ids, strict=True):
+        if ids and obj_id not in ids:
+            what = f"obj_id {obj_id}" + ("" if args.obj_id is None else " by --obj-id")
+            raise BundleError(
+                f"{bundle.path}: bundle is for object {bundle.obj_info.name!r} ({what}) but "
+                f"{dataset} has obj_ids {sorted(ids)}; pass --obj-id N to track the dataset's "
+                "object N with it"
+            )
+        bundle.check_dataset(ds, obj_id)
+    boxes = make_box_source(ds, args.split, args.detections, args.seed)
+    points: dict[int, np.ndarray] = {}
+    score = None
     if any(ds.scene(args.split, s).gt for s in scenes):
-        try:
-            points = model_points(ds, obj_id)
-        except Exception as err:  # no mesh: track anyway, without per-frame errors
-            print(f"note: no per-frame errors ({err})")
+        for obj_id in obj_ids:
+            try:
+                points[obj_id] = model_points(ds, obj_id)
+            except Exception as err:  # no mesh: track anyway, without per-frame errors
+                print(f"note: no per-frame errors of obj_id {obj_id} ({err})")
 
         def score(runs: dict[str, MethodRun]) -> str:
             return auc_table(dataset, runs, args.split, scenes)
@@ -296,7 +359,13 @@ def bop_input(args: argparse.Namespace, dataset: Path, bundle: Bundle) -> TrackI
         name=ds.root.resolve().name,
         split=args.split,
         sequences=bop_sequences(
-            ds, args.split, scenes, obj_id, boxes, args.modality == "rgbd", args.fps
+            ds,
+            args.split,
+            scenes,
+            obj_ids[0] if len(obj_ids) == 1 else obj_ids,
+            boxes,
+            args.modality == "rgbd",
+            args.fps,
         ),
         settings=bop_inputs(dataset, args.split, scenes, args.detections),
         boxes=boxes.description,
@@ -309,36 +378,60 @@ def bop_input(args: argparse.Namespace, dataset: Path, bundle: Bundle) -> TrackI
     )
 
 
-def plain_input(args: argparse.Namespace, bundle: Bundle) -> TrackInput:
-    """The TrackInput of --images / --video: one sequence (scene 1), no ground truth."""
+def plain_input(args: argparse.Namespace, bundles: list[Bundle]) -> TrackInput:
+    """The TrackInput of --images / --video: one sequence (scene 1), no ground truth; one
+    --init-box per bundle (in order), or detections (a BOP JSON, by obj_id, for several)."""
     from chpf.sources.plain import open_plain
 
     path = args.images if args.images is not None else args.video
     kind = "images" if args.images is not None else "video"
+    obj_ids = target_obj_ids(args, bundles)
+    several = len(bundles) > 1
+    if args.init_box is not None and len(args.init_box) != len(bundles):
+        raise ConfigError(
+            f"--init-box given {len(args.init_box)} time(s) for {len(bundles)} --bundle: give "
+            "one box per --bundle, in the same order"
+        )
+    if several and args.detections is not None and args.detections.suffix.lower() == ".csv":
+        raise ConfigError(
+            f"{args.detections}: a detections CSV has no object column, so it cannot serve "
+            f"{len(bundles)} --bundle; give a BOP detections JSON or one --init-box per bundle"
+        )
+    init: Any = None
+    if args.init_box is not None:
+        init = list(args.init_box) if several else args.init_box[0]
     source = open_plain(
         args.images,
         args.video,
         args.camera,
-        target_obj_id(args, bundle),
+        obj_ids if several else obj_ids[0],
         args.fps,
-        init_box=args.init_box,
+        init_box=init,
         detections=args.detections,
         depth=args.depth,
         depth_scale=args.depth_scale,
     )
     if args.init_box is not None:
-        shown = ",".join(f"{v:g}" for v in args.init_box)
+        shown = " ".join(",".join(f"{v:g}" for v in b) for b in args.init_box)
         boxes = f"detections: --init-box {shown} on the first frame only; the others have no box"
     else:
-        n = len(source.boxes.by_frame)
+        by_frame = (
+            {o: b.by_frame for o, b in source.boxes.items()}
+            if isinstance(source.boxes, dict)
+            else {obj_ids[0]: source.boxes.by_frame}
+        )
+        n = sum(len(v) for v in by_frame.values())
         boxes = f"detections: {n} boxes from {args.detections}; frames without one have no box"
     n_frames = len(source.frame_ids())
+    init_rec: Any = None
+    if args.init_box is not None:
+        init_rec = [list(b) for b in args.init_box] if several else list(args.init_box[0])
     settings = {
         kind: str(path.resolve()),
         "depth": None if args.depth is None else str(args.depth.resolve()),
         "depth_scale": getattr(source, "depth_scale", None),
         "camera": file_record(args.camera),
-        "init_box": None if args.init_box is None else list(args.init_box),
+        "init_box": init_rec,
         "detections": file_record(args.detections),
         "fps": source.fps,
     }
@@ -357,72 +450,93 @@ def plain_input(args: argparse.Namespace, bundle: Bundle) -> TrackInput:
 
 
 def make_sinks(
-    args: argparse.Namespace, methods: list[str], bundle: Bundle, fps: float, cfg: Any
+    args: argparse.Namespace,
+    methods: list[str],
+    bundles: list[Bundle],
+    obj_ids: list[int],
+    fps: float,
+    cfg: Any,
 ) -> list[FrameSink]:
     """The --overlay and --poses writers of the run (none without those options)."""
     sinks: list[FrameSink] = []
+    names = {o: b.obj_info.name for o, b in zip(obj_ids, bundles, strict=True)}
     if args.overlay is not None:
         from chpf.tracking.model_outline import outline_points
         from chpf.tracking.overlay import OverlayWriter
 
         n = {m: cfg.filter.n_particles for m in methods}
-        axis = 0.5 * bundle.obj_info.diameter
-        sinks.append(OverlayWriter(args.overlay, methods, outline_points(bundle), axis, fps, n))
+        points = {o: outline_points(b) for o, b in zip(obj_ids, bundles, strict=True)}
+        axes = {o: 0.5 * b.obj_info.diameter for o, b in zip(obj_ids, bundles, strict=True)}
+        sinks.append(OverlayWriter(args.overlay, methods, points, axes, fps, n, names))
     if args.poses is not None:
         from chpf.tracking.pose_stream import PoseStream
 
-        sinks.append(PoseStream(args.poses, target_obj_id(args, bundle), bundle.obj_info.name))
+        sinks.append(PoseStream(args.poses, names))
     return sinks
 
 
 def track(
     args: argparse.Namespace,
     methods: list[str],
-    bundle: Bundle,
+    bundles: list[Bundle],
     make_input: Callable[[], TrackInput],
     fresh: bool = False,
 ) -> int:
     """Run the methods on the input that ``make_input`` builds and report (shared by --dataset,
-    --images / --video and --demo).
+    --images / --video and --demo); several bundles are tracked together, one MultiTracker
+    per method.
 
     ``--out`` is locked while the run writes; its recorded settings must match this run's (see
     chpf.tracking.run_record) unless ``--overwrite``; ``fresh`` clears its outputs first."""
     inp = make_input()
-    obj_id = target_obj_id(args, bundle)
+    obj_ids = target_obj_ids(args, bundles)
     cfg = tracking_config(args)
     trackers = {
-        m: Tracker(bundle, method=m, modality=args.modality, seed=args.seed, config=cfg)
+        m: MultiTracker(
+            [
+                Tracker(b, method=m, modality=args.modality, seed=args.seed, config=cfg)
+                for b in bundles
+            ],
+            obj_ids,
+        )
         for m in methods
     }
     out = args.out
     with lock_output_dir(out, "chpf-track"):
-        settings = track_settings(bundle, inp.settings, methods, args.modality, args.seed, cfg)
+        settings = track_settings(bundles, inp.settings, methods, args.modality, args.seed, cfg)
+        if len(bundles) > 1:
+            settings["obj_ids"] = obj_ids
         if claim_settings(out, SETTINGS_FILE, settings, args.overwrite or fresh) or fresh:
             clear_outputs(out)
-        where = f"networks on the {describe(bundle.providers)}, {bundle.precision}"
+        where = f"networks on the {describe(bundles[0].providers)}, {bundles[0].precision}"
         print(f"{inp.boxes}; {where}", flush=True)
+        objects = " and ".join(
+            f"obj_id {o} ({b.obj_info.name})" for o, b in zip(obj_ids, bundles, strict=True)
+        )
         print(
-            f"tracking obj_id {obj_id} ({bundle.obj_info.name}) in {inp.what} with "
+            f"tracking {objects} in {inp.what} with "
             f"{', '.join(methods)} [{args.modality}, N={cfg.filter.n_particles}] -> {out}",
             flush=True,
         )
-        sinks = make_sinks(args, methods, bundle, inp.fps, cfg)
+        sinks = make_sinks(args, methods, bundles, obj_ids, inp.fps, cfg)
         runs = run_sequences(
             trackers,
             inp.sequences,
-            obj_id,
+            None,
             out,
             inp.name,
             inp.split,
             inp.box_origin,
             args.seed,
-            inp.points,
+            inp.points or None,
             progress=not args.no_progress,
             sinks=sinks,
         )
         print(stage_table(runs))
         summary = {
-            m: {"results": str(r.results), "log": str(r.log), "fps": r.fps} for m, r in runs.items()
+            label: {"results": str(r.results), "log": str(r.log), "fps": r.fps}
+            | ({} if len(bundles) == 1 else {"method": r.method, "obj_id": r.obj_id})
+            for label, r in runs.items()
         }
         if inp.score is not None:
             table = inp.score(runs)
@@ -433,11 +547,12 @@ def track(
         if not args.no_plot:
             from chpf.tracking.plots import plot_scenes
 
-            pngs = plot_scenes(
-                {m: r.log for m, r in runs.items()}, out / "plots", bundle.obj_info.name
-            )
-            for p in pngs:
-                print(f"plot: {p}")
+            for o, b in zip(obj_ids, bundles, strict=True):
+                mine = {r.method: r.log for r in runs.values() if r.obj_id == o}
+                folder = out / "plots" / ("" if len(bundles) == 1 else f"obj{o}")
+                title = b.obj_info.name + ("" if len(bundles) == 1 else f" (obj_id {o})")
+                for p in plot_scenes(mine, folder, title):
+                    print(f"plot: {p}")
         for what, path in (("overlay", args.overlay), ("poses", args.poses)):
             if path is not None:
                 print(f"{what}: {path}")
@@ -498,16 +613,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.poses is not None:
         check_out_file(args.poses)
     run_cfg = tracking_config(args).runtime
+    loaded: dict[Path, Bundle] = {}
+
+    def load(path: Path) -> Bundle:  # a bundle given twice is loaded once
+        key = Path(path).resolve()
+        if key not in loaded:
+            loaded[key] = Bundle.load(
+                path,
+                run_cfg.threads,
+                spin=run_cfg.spin,
+                precision=run_cfg.precision,
+                device=run_cfg.device,
+            )
+        return loaded[key]
+
     if args.demo:
         from chpf.tracking.demo import DEMO_METHODS, demo_dataset, shipped_bundle
 
-        bundle = Bundle.load(
-            args.bundle or shipped_bundle(),
-            run_cfg.threads,
-            spin=run_cfg.spin,
-            precision=run_cfg.precision,
-            device=run_cfg.device,
-        )
+        if args.bundle is not None and len(args.bundle) > 1:
+            raise ConfigError("--demo tracks one object: give --bundle at most once")
+        bundle = load(args.bundle[0] if args.bundle else shipped_bundle())
         dataset = demo_dataset(bundle)
         if args.modality != "rgb":
             raise ConfigError(f"{dataset}: the demo sequence is RGB only (no depth frames)")
@@ -515,21 +640,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.split = "test"
         methods = list(DEMO_METHODS) if args.method == "chpf" else parse_methods(args.method)
         return track(  # the demo starts afresh
-            args, methods, bundle, lambda: bop_input(args, dataset, bundle), fresh=True
+            args, methods, [bundle], lambda: bop_input(args, dataset, [bundle]), fresh=True
         )
     if args.bundle is None:
         raise ConfigError("chpf-track needs --bundle and --dataset (or --demo)")
     methods = parse_methods(args.method)
-    bundle = Bundle.load(
-        args.bundle,
-        run_cfg.threads,
-        spin=run_cfg.spin,
-        precision=run_cfg.precision,
-        device=run_cfg.device,
-    )
+    bundles = [load(p) for p in args.bundle]
+    target_obj_ids(args, bundles)  # counts and duplicates, before anything is read
     if args.dataset is not None:
-        return track(args, methods, bundle, lambda: bop_input(args, args.dataset, bundle))
-    return track(args, methods, bundle, lambda: plain_input(args, bundle))
+        return track(args, methods, bundles, lambda: bop_input(args, args.dataset, bundles))
+    return track(args, methods, bundles, lambda: plain_input(args, bundles))
 
 
 cli = run_main(main)

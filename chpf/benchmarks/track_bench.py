@@ -29,6 +29,7 @@ from chpf.bundle import Bundle
 from chpf.geometry import axis_angle_to_matrix
 from chpf.tracking.config import make_config
 from chpf.tracking.methods import method_names
+from chpf.tracking.multi import MultiTracker
 from chpf.tracking.runlog import NETWORK_STAGES
 from chpf.tracking.tracker import Tracker
 
@@ -75,16 +76,18 @@ def bench_frames(bundle: Bundle, n: int = 30):
 def bench_method(trackers: list[Tracker], frames, n_frames: int, warmup: int) -> dict[str, float]:
     """Mean ms per stage, end-to-end fps (from the mean frame time) and the median and 90th
     percentile frame times (ms; robust to other processes on a shared machine) of the
-    ``trackers`` (one per tracked object, stepped in turn on each frame) over n_frames (after
+    ``trackers`` (one per tracked object, stepped in turn on each frame by a MultiTracker, as
+    chpf-track does with several --bundle) over n_frames (after
     warm-up); times are per frame, all trackers together."""
     rgb, depth, K, boxes = frames
     n = len(boxes)
+    multi = MultiTracker(trackers, obj_ids=range(len(trackers)))  # as chpf-track steps them
 
     def step(k: int) -> dict[str, float]:
         stages: dict[str, float] = {}
-        for tr in trackers:
-            d = depth[k] if tr.modality == "rgbd" else None
-            for s, v in tr.step(rgb[k], depth=d, K=K, box=boxes[k]).stage_ms.items():
+        d = depth[k] if multi.modality == "rgbd" else None
+        for r in multi.step(rgb[k], depth=d, K=K, boxes=[boxes[k]] * len(trackers)):
+            for s, v in r.stage_ms.items():
                 stages[s] = stages.get(s, 0.0) + v
         return stages
 

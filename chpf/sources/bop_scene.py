@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 from chpf.bop import BopScene
 from chpf.sources.frame import SourceFrame
@@ -11,7 +11,8 @@ from chpf.tracking.warn import OnceWarner
 
 
 class BopSceneFrames:
-    """The frames of ``scene`` with the boxes of ``boxes`` for ``obj_id`` and its ground truth;
+    """The frames of ``scene`` with the boxes of ``boxes`` for ``obj_id`` and its ground truth
+    (a list of obj_ids: each object's, in ``SourceFrame.boxes`` / ``gts``);
     depth is read when ``want_depth`` (a missing depth image: RGB only, warned once through
     ``no_depth``). time = position / ``fps`` (BOP records no timestamps)."""
 
@@ -19,7 +20,7 @@ class BopSceneFrames:
         self,
         scene: BopScene,
         boxes: BoxSource,
-        obj_id: int,
+        obj_id: int | Sequence[int],
         want_depth: bool,
         no_depth: OnceWarner,
         fps: float,
@@ -46,15 +47,22 @@ class BopSceneFrames:
                     f"{scene.depth_path(im)}: no depth image for scene {sid} image {im} "
                     "of an RGB-D run; tracked with RGB only"
                 )
-            box = self.boxes.box(scene, im, self.obj_id, rgb.shape[1], rgb.shape[0])
-            gt = next((p for p in scene.gt.get(im, []) if p.obj_id == self.obj_id), None)
+            ids = [self.obj_id] if isinstance(self.obj_id, int) else list(self.obj_id)
+            boxes = {o: self.boxes.box(scene, im, o, rgb.shape[1], rgb.shape[0]) for o in ids}
+            gts = {}
+            for o in ids:
+                gt = next((p for p in scene.gt.get(im, []) if p.obj_id == o), None)
+                gts[o] = None if gt is None else (gt.R, gt.t)
+            several = not isinstance(self.obj_id, int)
             yield SourceFrame(
                 im,
                 rgb,
                 depth,
                 scene.camera(im).K,
-                box,
+                boxes[ids[0]],
                 pos / self.fps,
                 f"scene {sid} image {im}",
-                None if gt is None else (gt.R, gt.t),
+                gts[ids[0]],
+                boxes if several else None,
+                gts if several else None,
             )

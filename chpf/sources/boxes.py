@@ -68,3 +68,14 @@ class PlainBoxes:
         if self.init is not None:
             return self.init if first else None
         return self.by_frame.get(index)
+
+
+def frame_boxes(
+    boxes: PlainBoxes | dict[int, PlainBoxes], index: int, first: bool
+) -> tuple[Box | None, dict[int, Box | None] | None]:
+    """(box, boxes by obj_id) of frame ``index`` for ``SourceFrame``: one object's PlainBoxes
+    give (its box, None); several objects' ({obj_id: PlainBoxes}) give (the first's, all)."""
+    if isinstance(boxes, PlainBoxes):
+        return boxes.box(index, first), None
+    per = {o: b.box(index, first) for o, b in boxes.items()}
+    return next(iter(per.values()), None), per

@@ -21,6 +21,9 @@ class SourceFrame:
     or None; K (3,3); box (x, y, w, h) pixels or None (the tracker gets box=None); time: seconds
     from the source's start; name: the frame in messages (its file, or "VIDEO frame 7");
     gt: the ground-truth pose (R (3,3), t (3,) metres) when the source has one.
+    With several objects (``boxes`` / ``gts`` not None) those hold each object's box and
+    ground truth by obj_id, and ``box`` / ``gt`` are the first object's; read them with
+    ``box_of`` / ``gt_of``.
     """
 
     index: int
@@ -31,6 +34,16 @@ class SourceFrame:
     time: float
     name: str
     gt: tuple[np.ndarray, np.ndarray] | None = None
+    boxes: dict[int, Box | None] | None = None
+    gts: dict[int, tuple[np.ndarray, np.ndarray] | None] | None = None
+
+    def box_of(self, obj_id: int) -> Box | None:
+        """The box of object ``obj_id`` (the frame's only box when it has one object)."""
+        return self.box if self.boxes is None else self.boxes.get(obj_id)
+
+    def gt_of(self, obj_id: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The ground truth of object ``obj_id`` (the frame's only one with one object)."""
+        return self.gt if self.gts is None else self.gts.get(obj_id)
 
 
 class FrameSource(Protocol):

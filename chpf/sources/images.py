@@ -8,7 +8,7 @@ from pathlib import Path
 
 from chpf.bop import image_size, read_depth, read_rgb
 from chpf.errors import DatasetError, SourceError
-from chpf.sources.boxes import PlainBoxes
+from chpf.sources.boxes import PlainBoxes, frame_boxes
 from chpf.sources.camera import Camera
 from chpf.sources.frame import SourceFrame
 from chpf.tracking.warn import OnceWarner, SkippedFrameWarning
@@ -76,7 +76,7 @@ class ImageFolder:
         self,
         path: str | Path,
         camera: Camera,
-        boxes: PlainBoxes,
+        boxes: PlainBoxes | dict[int, PlainBoxes],
         fps: float,
         depth: str | Path | None = None,
         depth_scale: float = 1.0,
@@ -133,6 +133,8 @@ class ImageFolder:
                     "the run goes on"
                 )
                 continue
-            box = self.boxes.box(index, first)
+            box, boxes = frame_boxes(self.boxes, index, first)
             first = False
-            yield SourceFrame(index, rgb, depth, self.camera.K, box, pos / self.fps, str(path))
+            yield SourceFrame(
+                index, rgb, depth, self.camera.K, box, pos / self.fps, str(path), None, boxes
+            )

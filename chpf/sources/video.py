@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from chpf.errors import SourceError
-from chpf.sources.boxes import PlainBoxes
+from chpf.sources.boxes import PlainBoxes, frame_boxes
 from chpf.sources.camera import Camera
 from chpf.sources.frame import SourceFrame
 from chpf.tracking.warn import OnceWarner, SkippedFrameWarning
@@ -37,7 +37,13 @@ class VideoFile:
     SkippedFrameWarning (unreadable frames: once per run).
     """
 
-    def __init__(self, path: str | Path, camera: Camera, boxes: PlainBoxes, fps: float) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        camera: Camera,
+        boxes: PlainBoxes | dict[int, PlainBoxes],
+        fps: float,
+    ) -> None:
         self.path = Path(path)
         if not self.path.is_file():
             raise SourceError(f"{self.path}: video file not found")
@@ -81,11 +87,19 @@ class VideoFile:
                     lost = f"frame {pos - 1}" if bad == 1 else f"frames {pos - bad}-{pos - 1}"
                     skipped.warn(f"{self.path}: {lost} unreadable; skipped, the run goes on")
                     bad = 0
-                box = self.boxes.box(pos, first)
+                box, boxes = frame_boxes(self.boxes, pos, first)
                 first = False
                 rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
                 yield SourceFrame(
-                    pos, rgb, None, self.camera.K, box, pos / self.fps, f"{self.path} frame {pos}"
+                    pos,
+                    rgb,
+                    None,
+                    self.camera.K,
+                    box,
+                    pos / self.fps,
+                    f"{self.path} frame {pos}",
+                    None,
+                    boxes,
                 )
                 pos += 1
         finally:

@@ -2,8 +2,8 @@
 
 The filters take a Likelihood (chpf.tracking.types) so they run with the learned likelihoods
 of a model bundle (``Tracker.from_bundle``) or, in tests, with the OracleLikelihood.
-``Tracker``, ``TrackConfig`` and ``make_config`` are imported on first use (they load
-onnxruntime).
+``Tracker``, ``MultiTracker`` (several objects), ``TrackConfig`` and ``make_config`` are
+imported on first use (they load onnxruntime).
 """
 
 from typing import Any
@@ -36,6 +36,7 @@ __all__ = [
     "FixedRate",
     "Frame",
     "Likelihood",
+    "MultiTracker",
     "NoReinvigoration",
     "OracleLikelihood",
     "ParticleFilter",
@@ -56,6 +57,10 @@ def __getattr__(name: str) -> Any:
         from chpf.tracking.tracker import Tracker
 
         return Tracker
+    if name == "MultiTracker":
+        from chpf.tracking.multi import MultiTracker
+
+        return MultiTracker
     if name in ("TrackConfig", "make_config"):
         from chpf.tracking import config
 

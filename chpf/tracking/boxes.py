@@ -98,30 +98,41 @@ class FileBoxes(BoxSource):
 
 
 class SimulatedBoxes(BoxSource):
-    """The simulated detector run on the fly on scene_gt_info.json (seeded per scene)."""
+    """The simulated detector run on the fly on scene_gt_info.json (seeded per scene; each
+    object has its own detector with the scene's seed, so an object's boxes are the same
+    whether it is tracked alone or with others)."""
 
     simulated = True
 
     def __init__(self, seed: int) -> None:
         self.cfg = dict(SIMULATED_DETECTOR_DEFAULTS)
         self.seed = int(seed)
-        self.detector = None
+        self.scene_id: int | None = None
+        self.detectors: dict[int, SimulatedDetector] = {}
         self.description = (
             "detections: simulated detector (noisy visible ground-truth boxes from "
             "scene_gt_info.json, not a real detector)"
         )
 
     def start_scene(self, scene: BopScene) -> None:
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 4, scene.scene_id]))
-        self.detector = SimulatedDetector(self.cfg, rng)
+        self.scene_id = scene.scene_id
+        self.detectors = {}
+
+    def _detector(self, obj_id: int) -> SimulatedDetector:
+        assert self.scene_id is not None, "start_scene() first"
+        if obj_id not in self.detectors:
+            seq = np.random.SeedSequence([self.seed, 4, self.scene_id])
+            self.detectors[obj_id] = SimulatedDetector(self.cfg, np.random.default_rng(seq))
+        return self.detectors[obj_id]
 
     def box(self, scene: BopScene, im_id: int, obj_id: int, width: int, height: int) -> Box | None:
         gts = scene.gt.get(im_id, [])
         infos = scene.gt_info.get(im_id, [])
         for gt, info in zip(gts, infos, strict=False):
             if gt.obj_id == obj_id:
-                assert self.detector is not None, "start_scene() first"
-                det = self.detector.detect(scene.scene_id, im_id, obj_id, info, width, height)
+                det = self._detector(obj_id).detect(
+                    scene.scene_id, im_id, obj_id, info, width, height
+                )
                 return None if det is None else tuple(det["bbox"])  # type: ignore[return-value]
         return None
 

@@ -1,4 +1,4 @@
-"""``--poses FILE.jsonl``: one JSON line per tracked frame and method, flushed as it goes.
+"""``--poses FILE.jsonl``: one JSON line per tracked frame, method and object, flushed as it goes.
 
 Each line is a JSON object::
 
@@ -9,7 +9,9 @@ Each line is a JSON object::
 ``frame``: the frame's id (BOP im_id, image file number or position, video position); ``time``:
 seconds from the source's start; ``R`` (3x3, row-major rows) and ``t`` (metres) are the pose
 object-to-camera (OpenCV camera), null when there is no estimate; ``alpha``, ``ess`` are null
-when not computed; ``ms`` is the method's time for the frame. The file is written from the
+when not computed; ``ms`` is the method's time for the frame and object; ``has_box``: the
+frame gave this object a detection box. With several objects a frame's lines follow the objects'
+order (``obj_id`` and ``object`` tell them apart). The file is written from the
 start of the run (replacing an older one) and each line is written whole and flushed, so a
 program reading it as it grows only ever sees complete lines.
 """
@@ -23,7 +25,7 @@ from pathlib import Path
 from chpf.atomic import naming
 from chpf.outdir import check_out_file
 from chpf.sources.frame import SourceFrame
-from chpf.tracking.types import TrackResult
+from chpf.tracking.run_dataset import ObjectResult
 
 
 def _num(x: float, digits: int = 6) -> float | None:
@@ -33,35 +35,39 @@ def _num(x: float, digits: int = 6) -> float | None:
 class PoseStream:
     """A FrameSink (chpf.tracking.run_dataset) writing the lines above to ``path``."""
 
-    def __init__(self, path: str | Path, obj_id: int, object_name: str) -> None:
+    def __init__(self, path: str | Path, names: dict[int, str]) -> None:
+        """``names``: {obj_id: object name} of the tracked objects."""
         self.path = check_out_file(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.obj_id = int(obj_id)
-        self.object_name = object_name
+        self.names = {int(k): v for k, v in names.items()}
         with naming(self.path):
             self.file = open(self.path, "w", encoding="utf-8")
 
     def write(
-        self, scene_id: int, frame: SourceFrame, method: str, result: TrackResult, ms: float
+        self, scene_id: int, frame: SourceFrame, method: str, results: list[ObjectResult]
     ) -> None:
-        ok = bool(result.ok and result.R is not None and result.t is not None)
-        line = {
-            "scene_id": int(scene_id),
-            "frame": int(frame.index),
-            "time": _num(frame.time),
-            "method": method,
-            "obj_id": self.obj_id,
-            "object": self.object_name,
-            "ok": ok,
-            "R": [[_num(v, 9) for v in row] for row in result.R] if ok else None,
-            "t": [_num(v, 9) for v in result.t] if ok else None,
-            "alpha": _num(result.alpha),
-            "ess": _num(result.ess),
-            "has_box": frame.box is not None,
-            "ms": _num(ms, 3),
-        }
+        text = ""
+        for obj in results:
+            result = obj.result
+            ok = bool(result.ok and result.R is not None and result.t is not None)
+            line = {
+                "scene_id": int(scene_id),
+                "frame": int(frame.index),
+                "time": _num(frame.time),
+                "method": method,
+                "obj_id": int(obj.obj_id),
+                "object": self.names.get(int(obj.obj_id), ""),
+                "ok": ok,
+                "R": [[_num(v, 9) for v in row] for row in result.R] if ok else None,
+                "t": [_num(v, 9) for v in result.t] if ok else None,
+                "alpha": _num(result.alpha),
+                "ess": _num(result.ess),
+                "has_box": obj.has_box,
+                "ms": _num(obj.ms, 3),
+            }
+            text += json.dumps(line) + "\n"
         with naming(self.path):
-            self.file.write(json.dumps(line) + "\n")
+            self.file.write(text)
             self.file.flush()
 
     def close(self, completed: bool) -> None:

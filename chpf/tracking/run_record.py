@@ -43,22 +43,28 @@ def bop_inputs(
     }
 
 
+def _bundle_record(bundle: Bundle) -> dict[str, str]:
+    return {"path": str(bundle.path.resolve()), "sha256": sha256_file(bundle.path / MANIFEST)}
+
+
 def track_settings(
-    bundle: Bundle,
+    bundle: Bundle | list[Bundle],
     inputs: dict[str, Any],
     methods: list[str],
     modality: str,
     seed: int,
     config: TrackConfig,
 ) -> dict[str, Any]:
-    """Everything the outputs depend on: the bundle (manifest sha256, which covers every file),
-    the inputs (``bop_inputs``, or a plain input's files and boxes), the methods, modality, seed
-    and the full tracking config."""
+    """Everything the outputs depend on: the bundle (manifest sha256, which covers every file;
+    several bundles: ``bundles``, a list of them in order), the inputs (``bop_inputs``, or a
+    plain input's files and boxes), the methods, modality, seed and the full tracking config."""
+    bundles = bundle if isinstance(bundle, list) else [bundle]
+    if len(bundles) == 1:
+        which: dict[str, Any] = {"bundle": _bundle_record(bundles[0])}
+    else:
+        which = {"bundles": [_bundle_record(b) for b in bundles]}
     return {
-        "bundle": {
-            "path": str(bundle.path.resolve()),
-            "sha256": sha256_file(bundle.path / MANIFEST),
-        },
+        **which,
         **inputs,
         "methods": list(methods),
         "modality": modality,
@@ -68,11 +74,12 @@ def track_settings(
 
 
 def clear_outputs(out: Path) -> None:
-    """Remove every chpf-track output in ``out`` (result CSVs and logs of any method, plots,
-    reports); other files stay."""
+    """Remove every chpf-track output in ``out`` (result CSVs and logs of any method and
+    object, plots, reports); other files stay."""
     for m in method_names():
         tag = method_tag(m)
-        for p in [*out.glob(f"{tag}_*.csv"), out / f"log_{tag}.csv"]:
+        logs = [out / f"log_{tag}.csv", *out.glob(f"log_{tag}_obj*.csv")]
+        for p in [*out.glob(f"{tag}_*.csv"), *logs]:
             p.unlink(missing_ok=True)
     for name in REPORTS:
         (out / name).unlink(missing_ok=True)
