@@ -2,7 +2,9 @@
 
 A filter with a box: the first frame initialises the particles from phi_cand, later frames
 predict; then weigh, estimate and resample N - round(alpha N) particles from the belief and
-round(alpha N) from the reinvigoration proposal. A frame without a box is predict-only and
+round(alpha N) from the reinvigoration proposal (with ``keep_belief``: N from the belief, so
+that N + round(alpha N) particles are weighed at the next frame and the drawn ones join the
+belief instead of replacing part of it). A frame without a box is predict-only and
 keeps the last estimate. A collapse (all log-weights -inf) sets alpha to 1, warns once per
 filter and keeps the last estimate (the uniform-weight estimate when there is none yet).
 A subclass supplies the hooks ``_initialise``, ``_predict``, ``_weigh``, ``_estimate``,
@@ -39,6 +41,8 @@ class Weighed(NamedTuple):
 class FilterLoop:
     """Base of the particle filters: ``step(frame) -> TrackResult``, ``reset()``; the state
     ``weights`` (N,) and ``estimate`` (R (3,3), t (3,)) or None."""
+
+    keep_belief: bool = False  # the drawn particles join N from the belief (module docstring)
 
     def __init__(
         self, n_particles: int, rng: np.random.Generator | None, name: str, resampling: str
@@ -129,17 +133,20 @@ class FilterLoop:
         return self._result(weighed, stage_ms)
 
     def _resample(self, frame: Frame, weights: Weights, alpha: float) -> None:
-        """New particle set: N - round(alpha N) from the belief, the rest from ``_draw``."""
+        """New particle set: N - round(alpha N) from the belief (N with ``keep_belief`` unless
+        the weights collapsed), and round(alpha N) from ``_draw``."""
         n_cand = round(alpha * self.n)
+        n_belief = self.n if (self.keep_belief and weights.W is not None) else self.n - n_cand
         parts: list[Particles] = []
-        if self.n - n_cand > 0:
+        if n_belief > 0:
             assert weights.W is not None  # a collapse has alpha 1
-            parts.append(self._take(self.resample_indices(weights.W, self.n - n_cand, self.rng)))
+            parts.append(self._take(self.resample_indices(weights.W, n_belief, self.rng)))
         if n_cand > 0:
             parts.append(self._draw(frame, n_cand))
         self._assign(tuple(np.concatenate(arrays) for arrays in zip(*parts, strict=True)))
-        self.weights = np.full(self.n, 1.0 / self.n)
-        self.fresh = np.arange(self.n) >= self.n - n_cand
+        total = n_belief + n_cand
+        self.weights = np.full(total, 1.0 / total)
+        self.fresh = np.arange(total) >= n_belief
 
     def _result(self, weighed: Weighed | None, stage_ms: dict[str, float]) -> TrackResult:
         est = self.estimate

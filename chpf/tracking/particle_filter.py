@@ -46,6 +46,7 @@ class ParticleFilter(FilterLoop):
         self.strategy = strategy
         self.motion = motion or RandomWalk()
         self.candidates = candidates or CandidateSampler()
+        self.keep_belief = strategy.keeps_belief
         self.reset()
 
     def reset(self) -> None:
@@ -87,7 +88,7 @@ class ParticleFilter(FilterLoop):
                 self.R = scores.R
             stage_ms["likelihood"] = stage_ms.get("likelihood", 0.0) + ms_since(t0)
             add_ms(stage_ms, scores.stage_ms)
-            weights = Weights.from_weights(scores.w)
+            weights = Weights.from_weights(self.strategy.importance(scores))
             if m == len(betas) - 1:
                 a = self.strategy.alpha(scores, weights.W, self.fresh)
                 alpha = float(np.clip(a, 0.0, 1.0))

@@ -8,7 +8,9 @@ only CH-PF uses them) and ``reset()`` (forget its state at the start of a sequen
 attributes let a strategy change the core's loop without a special filter class: ``betas``
 (annealing layers, one weighing per entry; the default (1.0,) is one ordinary weighing) with
 ``layer_decay`` (diffusion scale factor per layer), and ``propose(frame, n, rng, likelihood)``
-(where reinvigorated particles come from; None means phi_cand).
+(where reinvigorated particles come from; None means phi_cand). CH-PF also changes how the
+particles weigh (``importance(scores)``: the likelihood's w, times (1 - C)^k for CH-PF) and,
+with ``keeps_belief``, whether the drawn particles replace part of the belief or join all of it.
 
 A strategy with options takes its config dataclass (defined next to it; the defaults live
 there and nowhere else); chpf.tracking.methods registers each one under its method name.
@@ -40,12 +42,17 @@ class Strategy:
     name = "none"
     betas: tuple[float, ...] = (1.0,)
     layer_decay: float = 1.0
+    keeps_belief: bool = False  # True: round(alpha N) drawn particles join N from the belief
 
     def alpha(
         self, scores: Scores, weights: np.ndarray | None = None, fresh: np.ndarray | None = None
     ) -> float:
         """Reinvigoration rate for this frame's resampling (see the module docstring)."""
         return 0.0
+
+    def importance(self, scores: Scores) -> np.ndarray:
+        """Importance weights (N,) of scored particles: the likelihood's w."""
+        return scores.w
 
     def reset(self) -> None:
         """Forget any state (start of a new sequence)."""
@@ -103,12 +110,18 @@ class CHPFConfig(Section):
     """CH-PF: c_mode, where the Counter-Hypothetical likelihood C comes from (C_MODES; depth
     and both need RGB-D); sums, which particles alpha's sums run over (CHPF_SUMS); l_power,
     the exponent p of L in those sums (S_L sums L^p; 1 = the paper's L); c_box, the margin of
-    the box-scale counter-evidence added to C (None = none; chpf.tracking.bundle_likelihood)."""
+    the box-scale counter-evidence added to C (None = none; chpf.tracking.bundle_likelihood);
+    c_weight, the exponent k of the importance weights w (1 - C)^k (0 = the paper's: C only
+    sets alpha); keep_belief, the round(alpha N) particles drawn from phi_cand join N resampled
+    from the belief (N + round(alpha N) weighed at the next frame) instead of replacing
+    round(alpha N) of them (false = the paper's)."""
 
     c_mode: CMode = "learned"
     sums: CHPFSums = "weighted"
     l_power: float = setting(3.0, gt=0.0)
     c_box: float | None = setting(0.2, gt=0.0)
+    c_weight: float = setting(0.0, ge=0.0)
+    keep_belief: bool = False
 
 
 class CHPF(Strategy):
@@ -123,6 +136,16 @@ class CHPF(Strategy):
 
     def __init__(self, config: CHPFConfig | None = None) -> None:
         self.config = config or CHPFConfig()
+        self.keeps_belief = self.config.keep_belief
+
+    def importance(self, scores: Scores) -> np.ndarray:
+        """w (1 - C) ** c_weight: the evidence against a particle weighs it down. L alone barely
+        tells a pose 0.3 diameters off from one within 0.1 (their mean L 0.67 and 0.70 on the
+        development suite), C does (0.43 and 0.10): docs/chpf-ablations.md."""
+        if self.config.c_weight <= 0.0 or scores.C is None:
+            return scores.w
+        keep = np.clip(1.0 - _finite(scores.C), 1e-6, 1.0)
+        return scores.w * keep**self.config.c_weight
 
     def _counts(self, n: int, weights: np.ndarray | None, fresh: np.ndarray | None) -> np.ndarray:
         """What each of the n particles counts in the sums (n,)."""

@@ -64,7 +64,12 @@ CHPF_ORACLE = CHPFConfig(l_power=1.0)
 
 
 @pytest.mark.parametrize(
-    "strategy", [CHPF(CHPFConfig(sums="paper", l_power=1.0)), SRL(SRLConfig(beta=0.6)), E2E()]
+    "strategy",
+    [
+        CHPF(CHPFConfig(sums="paper", l_power=1.0)),
+        SRL(SRLConfig(beta=0.6)),
+        E2E(),
+    ],
 )
 def test_reinvigorating_filters_converge_from_the_candidate_distribution(sequence, strategy):
     oracle = OracleLikelihood()
@@ -141,6 +146,41 @@ def test_the_filter_marks_the_particles_it_just_reinvigorated(sequence):
     assert filt.fresh.sum() == 10 and filt.fresh[-10:].all()  # the proposal's share, at the end
     filt.set_particles(filt.R, filt.t)
     assert not filt.fresh.any()
+
+
+@pytest.mark.parametrize("keep", [True, False])
+def test_chpf_drawn_particles_join_the_whole_belief_or_replace_part_of_it(sequence, keep):
+    oracle = OracleLikelihood()
+    filt = make_filter(CHPF(CHPFConfig(l_power=1.0, keep_belief=keep)), oracle)
+    _, res = run(filt, oracle, sequence, range(3))
+    for frame in range(3, 6):
+        n_drawn = round(res[-1].alpha * 50)
+        assert filt.fresh.sum() == n_drawn and filt.fresh[len(filt.fresh) - n_drawn :].all()
+        assert len(filt.R) == len(filt.t) == len(filt.fresh) == (50 + n_drawn if keep else 50)
+        calls = oracle.calls
+        _, more = run(filt, oracle, sequence, range(frame, frame + 1))
+        assert oracle.calls == calls + 1 and more[0].ok  # all of them weighed in one call
+        res = more
+
+
+def test_chpf_weights_follow_c_when_l_says_nothing(sequence):
+    """Occluded (L and w flat, C informative): half the particles at the truth, half 10 cm off
+    (oracle C = 1 - exp(-0.5 (0.1 / 0.06)^2) = 0.75 there, 0 at the truth). The paper's weights
+    average the two halves (5 cm off); w (1 - C) keeps the estimate at 0.25 / 1.25 x 10 cm."""
+    err = {}
+    for c_weight in (0.0, 1.0):
+        oracle = OracleLikelihood(occluded_L=0.5)
+        filt = make_filter(CHPF(CHPFConfig(l_power=1.0, c_weight=c_weight)), oracle)
+        run(filt, oracle, sequence, range(1))
+        t0 = np.concatenate([np.broadcast_to(sequence.t[1], (25, 3)),
+                             np.broadcast_to(sequence.t[1] + [0.1, 0, 0], (25, 3))])  # fmt: skip
+        filt.set_particles(np.broadcast_to(sequence.R[1], (50, 3, 3)), t0)
+        filt.motion = RandomWalk(sigma_t=0.0, sigma_r=0.0)
+        oracle.occluded = True
+        errs, _ = run(filt, oracle, sequence, range(1, 2))
+        err[c_weight] = errs[0, 0]
+    assert err[0.0] == pytest.approx(0.05, abs=0.002)
+    assert err[1.0] == pytest.approx(0.1 * 0.25 / 1.25, abs=0.003)
 
 
 def test_no_reinvigoration_does_not_recover_from_the_same_collapse(sequence):

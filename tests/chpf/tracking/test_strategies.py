@@ -58,6 +58,23 @@ def test_chpf_default_is_weighted_sums_with_l_cubed_and_the_box_scale_c():
     assert CHPF().alpha(scores(), W_FIXED, FRESH) == pytest.approx(e_c / (e_c + e_l3))
 
 
+def test_chpf_weighs_each_particle_by_the_evidence_against_it():
+    assert (CHPFConfig().c_weight, CHPFConfig().keep_belief) == (0.0, False)  # the paper's
+    w = L_FIXED.copy()
+    np.testing.assert_array_equal(CHPF().importance(scores()), w)
+    weighed = CHPF(CHPFConfig(c_weight=1.0))
+    np.testing.assert_allclose(weighed.importance(scores()), w * (1.0 - C_FIXED))
+    squared = CHPF(CHPFConfig(c_weight=2.0)).importance(scores())
+    np.testing.assert_allclose(squared, w * (1.0 - C_FIXED) ** 2)
+    # C = 1 (certainly wrong, e.g. behind the camera) leaves a tiny weight, NaN C counts as 0
+    out = weighed.importance(scores(L=[0.5, 0.5], C=[1.0, np.nan]))
+    assert 0.0 < out[0] < 1e-5 and out[1] == pytest.approx(0.5)
+    # the other strategies weigh by the likelihood alone
+    np.testing.assert_array_equal(SRL().importance(scores()), w)
+    assert CHPF(CHPFConfig(keep_belief=True)).keeps_belief and not CHPF().keeps_belief
+    assert not SRL().keeps_belief
+
+
 @pytest.mark.parametrize("sums", CHPF_SUMS)
 def test_chpf_l_power_raises_each_l_in_the_sums(sums):
     # paper: sum C = 3.0, sum L^2 = 0.81 + 0.25 + 0.01 + 0 + 0.09 = 1.16
