@@ -127,6 +127,10 @@ DEMO_K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
 """Intrinsics of every frame of the shipped demo sequence (320x240)."""
 
 
+PLAIN_FRAMES = 4
+"""Frames in the tracking tests' image-folder fixture (tests/chpf/tracking/conftest.py)."""
+
+
 def demo_frames(n: int) -> list[Path]:
     """The first ``n`` RGB frames of the shipped demo sequence (000001.png ...)."""
     return sorted((DEMO_SCENE / "rgb").glob("*.png"))[:n]

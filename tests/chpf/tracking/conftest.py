@@ -1,14 +1,24 @@
-"""Shared fixtures for the tracking tests: a synthetic moving pose and its detection boxes."""
+"""Shared fixtures for the tracking tests: a synthetic moving pose and its detection boxes; an
+image folder of the demo's first frames and its camera file (the plain-input tests)."""
 
 from __future__ import annotations
 
+import json
+import shutil
 from dataclasses import dataclass
 
 import numpy as np
 import pytest
 
 from chpf.geometry import axis_angle_to_matrix, project_points
-from tests.helpers import dot_head_model, onnx_model, write_bundle
+from tests.helpers import (
+    DEMO_K,
+    PLAIN_FRAMES,
+    demo_frames,
+    dot_head_model,
+    onnx_model,
+    write_bundle,
+)
 
 K_CAM = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
 OBJ_SIZE = 0.15  # metres, extent used for the synthetic boxes
@@ -219,3 +229,21 @@ def rendered_sequence() -> RenderedSequence:
 def sequence_renderer():
     """render_sequence(n, name, z) for tests that need another object or length."""
     return render_sequence
+
+
+@pytest.fixture
+def images(tmp_path):
+    """A folder of the demo's first PLAIN_FRAMES RGB frames."""
+    folder = tmp_path / "rgb"
+    folder.mkdir()
+    for f in demo_frames(PLAIN_FRAMES):
+        shutil.copy(f, folder)
+    return folder
+
+
+@pytest.fixture
+def camera(tmp_path):
+    """A camera JSON (K, width, height) of the demo's frames."""
+    path = tmp_path / "cam.json"
+    path.write_text(json.dumps({"K": DEMO_K.tolist(), "width": 320, "height": 240}))
+    return path

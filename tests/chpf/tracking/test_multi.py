@@ -22,13 +22,14 @@ from tests.helpers import (
     DEMO_K,
     DEMO_ROOT,
     DEMO_SCENE,
+    PLAIN_FRAMES,
     console_error,
     count_video_frames,
     demo_box,
     demo_frames,
 )
 
-N = 4  # frames
+N = PLAIN_FRAMES  # frames of the images fixture (conftest)
 FAST = ["--n-particles", "10", "--no-progress", "--no-plot"]
 TWIN = 9  # obj_id of the second copy of the demo's box in the two-object dataset
 
@@ -183,22 +184,6 @@ def test_bop_refusals_name_the_bundle_and_the_rule(tmp_path, capsys, monkeypatch
     line = console_error(cli, capsys, monkeypatch, "--demo", "--bundle", s, "--bundle", s)
     assert "--demo tracks one object" in line
     assert not (tmp_path / "o").exists()
-
-
-@pytest.fixture
-def images(tmp_path):
-    folder = tmp_path / "rgb"
-    folder.mkdir()
-    for f in demo_frames(N):
-        shutil.copy(f, folder)
-    return folder
-
-
-@pytest.fixture
-def camera(tmp_path):
-    path = tmp_path / "cam.json"
-    path.write_text(json.dumps({"K": DEMO_K.tolist(), "width": 320, "height": 240}))
-    return path
 
 
 def test_image_folder_with_one_init_box_per_bundle_reads_each_frame_once(

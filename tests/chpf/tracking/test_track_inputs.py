@@ -18,6 +18,7 @@ from tests.helpers import (
     DEMO_K,
     DEMO_ROOT,
     DEMO_SCENE,
+    PLAIN_FRAMES,
     console_error,
     count_video_frames,
     demo_box,
@@ -25,24 +26,8 @@ from tests.helpers import (
     write_video,
 )
 
-N = 4  # frames
+N = PLAIN_FRAMES  # frames of the images fixture (conftest)
 FAST = ["--n-particles", "10", "--no-progress", "--no-plot"]
-
-
-@pytest.fixture
-def images(tmp_path):
-    folder = tmp_path / "rgb"
-    folder.mkdir()
-    for f in demo_frames(N):
-        shutil.copy(f, folder)
-    return folder
-
-
-@pytest.fixture
-def camera(tmp_path):
-    path = tmp_path / "cam.json"
-    path.write_text(json.dumps({"K": DEMO_K.tolist(), "width": 320, "height": 240}))
-    return path
 
 
 def _box() -> str:
