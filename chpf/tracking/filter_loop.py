@@ -40,7 +40,8 @@ class Weighed(NamedTuple):
 
 class FilterLoop:
     """Base of the particle filters: ``step(frame) -> TrackResult``, ``reset()``; the state
-    ``weights`` (N,) and ``estimate`` (R (3,3), t (3,)) or None."""
+    ``weights`` (N,; N + round(alpha N) after a resampling with ``keep_belief``) and
+    ``estimate`` (R (3,3), t (3,)) or None."""
 
     keep_belief: bool = False  # the drawn particles join N from the belief (module docstring)
 

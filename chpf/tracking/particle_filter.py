@@ -46,8 +46,12 @@ class ParticleFilter(FilterLoop):
         self.strategy = strategy
         self.motion = motion or RandomWalk()
         self.candidates = candidates or CandidateSampler()
-        self.keep_belief = strategy.keeps_belief
         self.reset()
+
+    @property
+    def keep_belief(self) -> bool:
+        """The strategy's choice (``Strategy.keeps_belief``)."""
+        return self.strategy.keeps_belief
 
     def reset(self) -> None:
         """Forget the particles and the estimate (start of a new sequence)."""

@@ -136,7 +136,11 @@ class CHPF(Strategy):
 
     def __init__(self, config: CHPFConfig | None = None) -> None:
         self.config = config or CHPFConfig()
-        self.keeps_belief = self.config.keep_belief
+
+    @property
+    def keeps_belief(self) -> bool:
+        """The ``keep_belief`` option."""
+        return self.config.keep_belief
 
     def importance(self, scores: Scores) -> np.ndarray:
         """w (1 - C) ** c_weight: the evidence against a particle weighs it down. L alone barely
