@@ -120,8 +120,8 @@ class CHPFConfig(Section):
     sums: CHPFSums = "weighted"
     l_power: float = setting(3.0, gt=0.0)
     c_box: float | None = setting(0.2, gt=0.0)
-    c_weight: float = setting(0.0, ge=0.0)
-    keep_belief: bool = False
+    c_weight: float = setting(1.0, ge=0.0)
+    keep_belief: bool = True
 
 
 class CHPF(Strategy):

@@ -59,9 +59,10 @@ def test_chpf_default_is_weighted_sums_with_l_cubed_and_the_box_scale_c():
 
 
 def test_chpf_weighs_each_particle_by_the_evidence_against_it():
-    assert (CHPFConfig().c_weight, CHPFConfig().keep_belief) == (0.0, False)  # the paper's
+    assert (CHPFConfig().c_weight, CHPFConfig().keep_belief) == (1.0, True)
     w = L_FIXED.copy()
-    np.testing.assert_array_equal(CHPF().importance(scores()), w)
+    paper = CHPF(CHPFConfig(c_weight=0.0, keep_belief=False))
+    np.testing.assert_array_equal(paper.importance(scores()), w)
     weighed = CHPF(CHPFConfig(c_weight=1.0))
     np.testing.assert_allclose(weighed.importance(scores()), w * (1.0 - C_FIXED))
     squared = CHPF(CHPFConfig(c_weight=2.0)).importance(scores())
@@ -71,7 +72,7 @@ def test_chpf_weighs_each_particle_by_the_evidence_against_it():
     assert 0.0 < out[0] < 1e-5 and out[1] == pytest.approx(0.5)
     # the other strategies weigh by the likelihood alone
     np.testing.assert_array_equal(SRL().importance(scores()), w)
-    assert CHPF(CHPFConfig(keep_belief=True)).keeps_belief and not CHPF().keeps_belief
+    assert CHPF().keeps_belief and not paper.keeps_belief
     assert not SRL().keeps_belief
 
 
