@@ -430,7 +430,8 @@ def test_shipped_bundle_tracks_an_unoccluded_sequence(
     (measured: E2E 0.049, 0.087, 6.4 deg; PoseRBPF 0.143, 0.272, 13.5 deg, whose seeds range
     from 0.09 to 0.32 in ADD-S; CH-PF 0.171, 0.330, 8.2 deg, whose seeds range from 0.06 to
     0.19 in ADD-S: with seed 1 the belief drifts 0.45 diameter towards the camera with alpha
-    near 0, a depth error neither network sees well (bundle_likelihood, item 6); CH-RBPF 0.110, 0.211, 11.7 deg)."""
+    near 0, a depth error neither network sees well (bundle_likelihood, item 6); CH-RBPF
+    0.110, 0.211, 11.7 deg)."""
     bundle = _shipped_bundle()
     seq = sequence_renderer(30, name=bundle.obj_info.name, z=3.0 * bundle.obj_info.diameter)
     errs = []
