@@ -7,9 +7,10 @@ with the ``chpf`` options: which particles the sums run over, the power of L) ov
 the particles' normalised weights and the ones drawn at the last resampling. alpha replaces
 PoseRBPF's threshold reset and PoseRBPF++'s fixed share; a collapse reinvigorates all. The
 reinvigorated particles come from phi_cand with uniform orientation distributions, as
-PoseRBPF's. C is the learned one whatever ``chpf.c_mode`` says. CH-PF's other two options
-act here as there: ``c_weight`` k weighs each particle by its PoseRBPF weight times
-(1 - C_i)^k, and ``keep_belief`` lets the drawn particles join N resampled from the belief.
+PoseRBPF's. C is the learned one whatever ``chpf.c_mode`` says. CH-PF's other options act
+here as there: ``temper`` and ``c_weight`` k turn each particle's PoseRBPF weight w_i into
+w_i^(1 - temper alpha_prev) (1 - C_i)^k, and ``keep_belief`` lets the drawn particles join N
+resampled from the belief.
 """
 
 from __future__ import annotations
@@ -33,8 +34,13 @@ class CHRBPF(RaoBlackwellisedFilter):
     RaoBlackwellisedFilter's (its reset_threshold and reinvigorate are not used)."""
 
     def __init__(self, likelihood: CodebookLikelihood, rule: CHPF, **kwargs: Any) -> None:
-        super().__init__(likelihood, name="chrbpf", **kwargs)
         self.rule = rule
+        super().__init__(likelihood, name="chrbpf", **kwargs)
+
+    def reset(self) -> None:
+        """Forget the particles, the estimate and the rule's state."""
+        super().reset()
+        self.rule.reset()
 
     @property
     def keep_belief(self) -> bool:

@@ -189,18 +189,21 @@ def test_chrbpf_drawn_particles_join_the_whole_belief_or_replace_part_of_it(sequ
     assert len(filt.t) == len(filt.P) == (50 + n_drawn if keep else 50)
     _, more = track(filt, oracle, sequence, range(11, 12))
     assert more[0].ok and len(filt.weights) == len(filt.t)
+    assert filt.rule.last_alpha == more[0].alpha > 0.0
+    filt.reset()  # a new sequence: no doubt carried over (chpf.temper)
+    assert filt.rule.last_alpha == 0.0 and not filt.initialised
 
 
 def test_chrbpf_weighs_each_particle_down_by_its_c(sequence):
     """c_weight 1: the weights are PoseRBPF's times (1 - C_i), normalised."""
     oracle = OracleLikelihood(grid=GRID)
-    filt = make_chrbpf(oracle, c_weight=0.0)
+    filt = make_chrbpf(oracle, c_weight=0.0, temper=0.0)
     track(filt, oracle, sequence, range(10))
     spread = np.random.default_rng(5).normal(0.0, 0.03, filt.t.shape)
     filt.set_particles(filt.t + spread)
     oracle.set_pose(sequence.R[10], sequence.t[10])
     twin = copy.deepcopy(filt)  # its own copy of the oracle too
-    twin.rule = CHPF(CHPFConfig(c_weight=1.0))
+    twin.rule = CHPF(CHPFConfig(c_weight=1.0, temper=0.0))
     frame = Frame(sequence.rgb, None, sequence.K, sequence.box(10))
     plain, weighed = filt._weigh(frame, {}), twin._weigh(frame, {})
     C = oracle.codebook_scores(frame, twin.t).misaligned(np.argmax(twin.P, axis=1))

@@ -76,6 +76,25 @@ def test_chpf_weighs_each_particle_by_the_evidence_against_it():
     assert not SRL().keeps_belief
 
 
+def test_chpf_doubt_tempers_the_next_frames_weights():
+    """temper t: the weights of the frame after an alpha a are w^(1 - t a) (1 - C)^k; the first
+    frame of a sequence (and after reset) has no doubt yet."""
+    rule = CHPF(CHPFConfig(temper=1.0, c_weight=1.0))
+    w = L_FIXED.copy()
+    np.testing.assert_allclose(rule.importance(scores()), w * (1.0 - C_FIXED))
+    a = rule.alpha(scores(), W_FIXED, FRESH)
+    assert 0.2 < a < 0.9
+    np.testing.assert_allclose(rule.importance(scores()), w ** (1.0 - a) * (1.0 - C_FIXED))
+    half = CHPF(CHPFConfig(temper=0.5, c_weight=0.0))
+    half.alpha(scores(), W_FIXED, FRESH)
+    np.testing.assert_allclose(half.importance(scores()), w ** (1.0 - 0.5 * a))
+    rule.reset()
+    np.testing.assert_allclose(rule.importance(scores()), w * (1.0 - C_FIXED))
+    off = CHPF(CHPFConfig(temper=0.0, c_weight=0.0))
+    off.alpha(scores(), W_FIXED, FRESH)
+    np.testing.assert_array_equal(off.importance(scores()), w)
+
+
 @pytest.mark.parametrize("sums", CHPF_SUMS)
 def test_chpf_l_power_raises_each_l_in_the_sums(sums):
     # paper: sum C = 3.0, sum L^2 = 0.81 + 0.25 + 0.01 + 0 + 0.09 = 1.16
