@@ -88,12 +88,14 @@ class CandidateSampler:
         return (u - side / 2, v - side / 2, side, side)
 
     def box_for(self, frame: Frame, estimate_t: np.ndarray | None) -> Box | None:
-        """The box phi_cand draws from: the detection, or (``occluded_box``) the belief's box
-        when the detection lies inside it and is smaller by more than 10 %: a detection of the
-        visible part of the believed object, whose own box would put candidates too far away
-        and off-centre."""
+        """The box phi_cand draws from: the detection, or (``occluded_box``, RGB frames) the
+        belief's box when the detection lies inside it and is smaller by more than 10 %: a
+        detection of the visible part of the believed object, whose own box would put RGB
+        candidates too far away (their z comes from the box's size) and off-centre. With depth
+        the candidates' z is measured at (u, v), so the visible part's box serves: the belief's
+        box would put some of them on the occluder."""
         det = valid_box(frame.box)
-        if not self.occluded_box or det is None or estimate_t is None:
+        if not self.occluded_box or det is None or estimate_t is None or frame.depth is not None:
             return det
         bel = self.belief_box(np.asarray(estimate_t, dtype=np.float64), np.asarray(frame.K))
         if bel is None:

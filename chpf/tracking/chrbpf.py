@@ -7,7 +7,10 @@ with the ``chpf`` options: which particles the sums run over, the power of L) ov
 the particles' normalised weights and the ones drawn at the last resampling. alpha replaces
 PoseRBPF's threshold reset and PoseRBPF++'s fixed share; a collapse reinvigorates all. The
 reinvigorated particles come from phi_cand with uniform orientation distributions, as
-PoseRBPF's. C is the learned one whatever ``chpf.c_mode`` says.
+PoseRBPF's. C is the learned one whatever ``chpf.c_mode`` says. CH-PF's other options act
+here as there: ``temper`` and ``c_weight`` k turn each particle's PoseRBPF weight w_i into
+w_i^(1 - temper alpha_prev) (1 - C_i)^k, and ``keep_belief`` lets the drawn particles join N
+resampled from the belief.
 """
 
 from __future__ import annotations
@@ -31,8 +34,18 @@ class CHRBPF(RaoBlackwellisedFilter):
     RaoBlackwellisedFilter's (its reset_threshold and reinvigorate are not used)."""
 
     def __init__(self, likelihood: CodebookLikelihood, rule: CHPF, **kwargs: Any) -> None:
-        super().__init__(likelihood, name="chrbpf", **kwargs)
         self.rule = rule
+        super().__init__(likelihood, name="chrbpf", **kwargs)
+
+    def reset(self) -> None:
+        """Forget the particles, the estimate and the rule's state."""
+        super().reset()
+        self.rule.reset()
+
+    @property
+    def keep_belief(self) -> bool:
+        """The rule's choice (``CHPF.keeps_belief``)."""
+        return self.rule.keeps_belief
 
     def _reinvigoration(
         self,
@@ -49,6 +62,9 @@ class CHRBPF(RaoBlackwellisedFilter):
         t0 = time.perf_counter()
         C = np.asarray(cs.misaligned(k), dtype=np.float64)
         stage_ms["head"] = ms_since(t0)
+        if weights.W is None:
+            return Weighed(weights, 1.0, float(L.sum()), float(C.sum()))
+        weights = Weights.from_weights(self.rule.importance(Scores(L=L, w=weights.W, C=C)))
         W = weights.W
         alpha = 1.0 if W is None else self.rule.alpha(Scores(L=L, w=W, C=C), W, self.fresh)
         return Weighed(weights, float(np.clip(alpha, 0.0, 1.0)), float(L.sum()), float(C.sum()))

@@ -61,7 +61,7 @@ class CandidatesConfig(Section):
     depth_offset: tuple[float, float] | None = None  # RGB-D: z = measured + U(a, b); None =
     # (0, diameter / 2)
     depth_window: int = 3
-    occluded_box: bool = False  # a detection inside the belief's box: draw from the belief's
+    occluded_box: bool = True  # a detection inside the belief's box: draw from the belief's
 
     def check(self) -> None:
         lo, hi = self.z_range

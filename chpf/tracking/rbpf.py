@@ -97,14 +97,16 @@ class RaoBlackwellisedFilter(FilterLoop):
         return self.t is not None
 
     def set_particles(self, t: np.ndarray, P: np.ndarray | None = None) -> None:
-        """Replace the translation particles (N,3) and their distributions (N,K) (None: uniform)."""
-        self.t = np.array(t, dtype=np.float64).reshape(self.n, 3)
+        """Replace the translation particles (n,3) and their distributions (n,K) (None: uniform)."""
+        self.t = np.array(t, dtype=np.float64).reshape(-1, 3)
+        n = len(self.t)
         self.P = (
-            np.full((self.n, self.k), 1.0 / self.k, np.float32)
+            np.full((n, self.k), 1.0 / self.k, np.float32)
             if P is None
-            else np.array(P, dtype=np.float32).reshape(self.n, self.k)
+            else np.array(P, dtype=np.float32).reshape(n, self.k)
         )
-        self.weights = np.full(self.n, 1.0 / self.n)
+        self.weights = np.full(n, 1.0 / n)
+        self.fresh = np.zeros(n, dtype=bool)
 
     def _rotation(self, p: np.ndarray) -> np.ndarray:
         """Allocentric rotation (3,3) from a distribution p (K,) over the grid."""
@@ -117,6 +119,7 @@ class RaoBlackwellisedFilter(FilterLoop):
     # ------------------------------------------------------------------ FilterLoop hooks
     def _initialise(self, frame: Frame) -> None:
         self.set_particles(self.candidates.translations(self.n, frame, self.rng))
+        self.fresh = np.ones(self.n, dtype=bool)
 
     def _predict(self) -> None:
         assert self.t is not None and self.P is not None

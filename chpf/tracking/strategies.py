@@ -114,14 +114,17 @@ class CHPFConfig(Section):
     c_weight, the exponent k of the importance weights w (1 - C)^k (0 = the paper's: C only
     sets alpha); keep_belief, the round(alpha N) particles drawn from phi_cand join N resampled
     from the belief (N + round(alpha N) weighed at the next frame) instead of replacing
-    round(alpha N) of them (false = the paper's)."""
+    round(alpha N) of them (false = the paper's); temper, how much the set's doubt flattens the
+    likelihood's weights: w^(1 - temper alpha_prev), alpha_prev the previous frame's alpha (0 =
+    the paper's: w as it is)."""
 
     c_mode: CMode = "learned"
     sums: CHPFSums = "weighted"
     l_power: float = setting(3.0, gt=0.0)
     c_box: float | None = setting(0.2, gt=0.0)
-    c_weight: float = setting(0.0, ge=0.0)
-    keep_belief: bool = False
+    c_weight: float = setting(1.0, ge=0.0)
+    keep_belief: bool = True
+    temper: float = setting(1.0, ge=0.0, le=1.0)
 
 
 class CHPF(Strategy):
@@ -136,6 +139,10 @@ class CHPF(Strategy):
 
     def __init__(self, config: CHPFConfig | None = None) -> None:
         self.config = config or CHPFConfig()
+        self.last_alpha = 0.0  # the previous frame's alpha (``temper``)
+
+    def reset(self) -> None:
+        self.last_alpha = 0.0
 
     @property
     def keeps_belief(self) -> bool:
@@ -143,13 +150,19 @@ class CHPF(Strategy):
         return self.config.keep_belief
 
     def importance(self, scores: Scores) -> np.ndarray:
-        """w (1 - C) ** c_weight: the evidence against a particle weighs it down. L alone barely
-        tells a pose 0.3 diameters off from one within 0.1 (their mean L 0.67 and 0.70 on the
-        development suite), C does (0.43 and 0.10): docs/chpf-ablations.md."""
+        """w ** (1 - temper alpha_prev) (1 - C) ** c_weight. The evidence against a particle
+        weighs it down: L alone barely tells a pose 0.3 diameters off from one within 0.1
+        (their mean L 0.67 and 0.70 on the development suite), C does (0.43 and 0.10). And a
+        set in doubt trusts the likelihood less: when most of the object is hidden, a sharp w
+        hands the set to whichever particle best matches the visible sliver
+        (docs/chpf-ablations.md)."""
+        w = scores.w
+        if self.config.temper > 0.0:
+            w = np.asarray(w, dtype=np.float64) ** (1.0 - self.config.temper * self.last_alpha)
         if self.config.c_weight <= 0.0 or scores.C is None:
-            return scores.w
+            return w
         keep = np.clip(1.0 - _finite(scores.C), 1e-6, 1.0)
-        return scores.w * keep**self.config.c_weight
+        return w * keep**self.config.c_weight
 
     def _counts(self, n: int, weights: np.ndarray | None, fresh: np.ndarray | None) -> np.ndarray:
         """What each of the n particles counts in the sums (n,)."""
@@ -169,7 +182,8 @@ class CHPF(Strategy):
         sum_c = float(k @ C)
         sum_l = float(k @ _finite(scores.L).clip(min=0.0) ** self.config.l_power)
         total = sum_c + sum_l
-        return 1.0 if total <= 0.0 else sum_c / total
+        self.last_alpha = 1.0 if total <= 0.0 else sum_c / total
+        return self.last_alpha
 
 
 @dataclass

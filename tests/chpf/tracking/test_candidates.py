@@ -163,7 +163,8 @@ def test_codebook_rotations_refuse_bad_settings():
 def test_a_detection_inside_the_belief_box_is_read_as_its_visible_part():
     """occluded_box: a detection inside the belief's projected box and smaller by more than
     10 % gives the belief's box (candidates at the believed place and scale); a detection as
-    large as the belief, or elsewhere, stays the box; off, the detection is always the box."""
+    large as the belief, or elsewhere, stays the box; off, or on an RGB-D frame, the detection
+    is always the box."""
     K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
     sampler = CandidateSampler(box_extent=0.2, occluded_box=True)
     t = np.array([0.0, 0.0, 1.0])  # belief box: 60 px square centred on (160, 120)
@@ -177,6 +178,8 @@ def test_a_detection_inside_the_belief_box_is_read_as_its_visible_part():
     assert sampler.box_for(half, None) == half.box
     off = CandidateSampler(box_extent=0.2)
     assert off.box_for(half, t) == half.box
+    with_depth = Frame(half.rgb, np.ones((240, 320), np.float32), K, half.box)
+    assert sampler.box_for(with_depth, t) == half.box  # RGB-D: z is measured, the box serves
     _, ts = sampler.sample(200, half, np.random.default_rng(0), t)
     u = K[0, 0] * ts[:, 0] / ts[:, 2] + K[0, 2]
     assert u.min() > 130.0 and u.max() < 190.0 and u.mean() == pytest.approx(160.0, abs=3.0)

@@ -66,7 +66,7 @@ CHPF_ORACLE = CHPFConfig(l_power=1.0)
 @pytest.mark.parametrize(
     "strategy",
     [
-        CHPF(CHPFConfig(sums="paper", l_power=1.0)),
+        CHPF(CHPFConfig(sums="paper", l_power=1.0, c_weight=0.0, keep_belief=False, temper=0.0)),
         SRL(SRLConfig(beta=0.6)),
         E2E(),
     ],

@@ -3,6 +3,8 @@ matrix."""
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -156,7 +158,7 @@ def test_chrbpf_converges_and_its_alpha_is_chpfs_rule_over_its_particles(sequenc
     frame = Frame(sequence.rgb, None, sequence.K, sequence.box(i))
     weighed = filt._weigh(frame, {})
     k = np.argmax(filt.P, axis=1)
-    cos = oracle.codebook_scores(frame, filt.t).cos[np.arange(50), k]
+    cos = oracle.codebook_scores(frame, filt.t).cos[np.arange(len(k)), k]
     C = oracle.codebook_scores(frame, filt.t).misaligned(k)
     W = weighed.weights.W
     e_c, e_l = W @ C, W @ np.clip(cos, 0, None) ** CHPFConfig().l_power
@@ -172,6 +174,42 @@ def test_chrbpf_reinvigorates_all_after_a_forced_collapse_and_recovers(sequence)
     errs, res = track(filt, oracle, sequence, range(30, 60))
     assert res[0].alpha > 0.8 and errs[0, 0] > 0.05
     assert errs[-10:, 0].mean() < 0.02 and errs[-10:, 1].mean() < 12.0
+
+
+@pytest.mark.parametrize("keep", [True, False])
+def test_chrbpf_drawn_particles_join_the_whole_belief_or_replace_part_of_it(sequence, keep):
+    oracle = OracleLikelihood(grid=GRID)
+    filt = make_chrbpf(oracle, keep_belief=keep)
+    track(filt, oracle, sequence, range(10))
+    filt.set_particles(filt.t + np.array([0.08, 0.0, 0.0]))  # lost: alpha near 1
+    _, res = track(filt, oracle, sequence, range(10, 11))
+    n_drawn = round(res[0].alpha * 50)
+    assert n_drawn > 25
+    assert filt.fresh.sum() == n_drawn and filt.fresh[-n_drawn:].all()
+    assert len(filt.t) == len(filt.P) == (50 + n_drawn if keep else 50)
+    _, more = track(filt, oracle, sequence, range(11, 12))
+    assert more[0].ok and len(filt.weights) == len(filt.t)
+    assert filt.rule.last_alpha == more[0].alpha > 0.0
+    filt.reset()  # a new sequence: no doubt carried over (chpf.temper)
+    assert filt.rule.last_alpha == 0.0 and not filt.initialised
+
+
+def test_chrbpf_weighs_each_particle_down_by_its_c(sequence):
+    """c_weight 1: the weights are PoseRBPF's times (1 - C_i), normalised."""
+    oracle = OracleLikelihood(grid=GRID)
+    filt = make_chrbpf(oracle, c_weight=0.0, temper=0.0)
+    track(filt, oracle, sequence, range(10))
+    spread = np.random.default_rng(5).normal(0.0, 0.03, filt.t.shape)
+    filt.set_particles(filt.t + spread)
+    oracle.set_pose(sequence.R[10], sequence.t[10])
+    twin = copy.deepcopy(filt)  # its own copy of the oracle too
+    twin.rule = CHPF(CHPFConfig(c_weight=1.0, temper=0.0))
+    frame = Frame(sequence.rgb, None, sequence.K, sequence.box(10))
+    plain, weighed = filt._weigh(frame, {}), twin._weigh(frame, {})
+    C = oracle.codebook_scores(frame, twin.t).misaligned(np.argmax(twin.P, axis=1))
+    assert C.std() > 0.05
+    expected = plain.weights.W * (1.0 - C)
+    np.testing.assert_allclose(weighed.weights.W, expected / expected.sum(), rtol=1e-6)
 
 
 def test_neighbour_table_lists_each_entry_first_then_its_nearest():

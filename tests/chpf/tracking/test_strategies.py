@@ -59,9 +59,10 @@ def test_chpf_default_is_weighted_sums_with_l_cubed_and_the_box_scale_c():
 
 
 def test_chpf_weighs_each_particle_by_the_evidence_against_it():
-    assert (CHPFConfig().c_weight, CHPFConfig().keep_belief) == (0.0, False)  # the paper's
+    assert (CHPFConfig().c_weight, CHPFConfig().keep_belief) == (1.0, True)
     w = L_FIXED.copy()
-    np.testing.assert_array_equal(CHPF().importance(scores()), w)
+    paper = CHPF(CHPFConfig(c_weight=0.0, keep_belief=False))
+    np.testing.assert_array_equal(paper.importance(scores()), w)
     weighed = CHPF(CHPFConfig(c_weight=1.0))
     np.testing.assert_allclose(weighed.importance(scores()), w * (1.0 - C_FIXED))
     squared = CHPF(CHPFConfig(c_weight=2.0)).importance(scores())
@@ -71,8 +72,27 @@ def test_chpf_weighs_each_particle_by_the_evidence_against_it():
     assert 0.0 < out[0] < 1e-5 and out[1] == pytest.approx(0.5)
     # the other strategies weigh by the likelihood alone
     np.testing.assert_array_equal(SRL().importance(scores()), w)
-    assert CHPF(CHPFConfig(keep_belief=True)).keeps_belief and not CHPF().keeps_belief
+    assert CHPF().keeps_belief and not paper.keeps_belief
     assert not SRL().keeps_belief
+
+
+def test_chpf_doubt_tempers_the_next_frames_weights():
+    """temper t: the weights of the frame after an alpha a are w^(1 - t a) (1 - C)^k; the first
+    frame of a sequence (and after reset) has no doubt yet."""
+    rule = CHPF(CHPFConfig(temper=1.0, c_weight=1.0))
+    w = L_FIXED.copy()
+    np.testing.assert_allclose(rule.importance(scores()), w * (1.0 - C_FIXED))
+    a = rule.alpha(scores(), W_FIXED, FRESH)
+    assert 0.2 < a < 0.9
+    np.testing.assert_allclose(rule.importance(scores()), w ** (1.0 - a) * (1.0 - C_FIXED))
+    half = CHPF(CHPFConfig(temper=0.5, c_weight=0.0))
+    half.alpha(scores(), W_FIXED, FRESH)
+    np.testing.assert_allclose(half.importance(scores()), w ** (1.0 - 0.5 * a))
+    rule.reset()
+    np.testing.assert_allclose(rule.importance(scores()), w * (1.0 - C_FIXED))
+    off = CHPF(CHPFConfig(temper=0.0, c_weight=0.0))
+    off.alpha(scores(), W_FIXED, FRESH)
+    np.testing.assert_array_equal(off.importance(scores()), w)
 
 
 @pytest.mark.parametrize("sums", CHPF_SUMS)
