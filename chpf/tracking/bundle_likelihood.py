@@ -290,8 +290,8 @@ class BundleLikelihood:
     def box_centre_cosines(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
         """Cosines (K,) of the crop at the detection box's centre with the whole codebook and
         that crop's translation (3,) metres (depth guessed from the box size and the codebook's
-        median object extent); None without a box."""
-        box = valid_box(frame.box)
+        median object extent); the box is ``frame.cue_box()``; None without one."""
+        box = valid_box(frame.cue_box())
         if box is None:
             return None
         K = np.asarray(frame.K, dtype=np.float64)
@@ -313,9 +313,10 @@ class BundleLikelihood:
 
     # ------------------------------------------------------------------ MCL + E2E
     def single_frame_estimate(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
-        """Pose from the detection box alone: the codebook entry with the best cosine for the
-        crop at the box centre (box_centre_cosines) gives R_allo, that entry's own extent vs the
-        box gives z; then egocentric through the ray of the box centre. None without a box."""
+        """Pose from the detection box (``frame.cue_box()``) alone: the codebook entry with the
+        best cosine for the crop at the box centre (box_centre_cosines) gives R_allo, that
+        entry's own extent vs the box gives z; then egocentric through the ray of the box
+        centre. None without a box."""
         found = self.box_centre_cosines(frame)
         if found is None:
             return None

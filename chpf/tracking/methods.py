@@ -44,7 +44,10 @@ if TYPE_CHECKING:
 
 
 class Filter(Protocol):
-    """What every filter offers: one step per frame, reset between sequences."""
+    """What every filter offers: one step per frame, reset between sequences, and its current
+    estimate (R (3,3), t (3,) metres; None before the first weighed frame)."""
+
+    estimate: tuple[np.ndarray, np.ndarray] | None
 
     def step(self, frame: Frame) -> TrackResult: ...
 

@@ -12,15 +12,47 @@ Box = tuple[float, float, float, float]
 """A 2D detection box (x, y, w, h) in pixels (x, y = top-left corner)."""
 
 
+@dataclass(frozen=True)
+class Region:
+    """A search region of a frame without a detection (chpf.tracking.search_region).
+
+    box (x, y, w, h) pixels: the model's projected bounding box at the current estimate, the
+    object's size there (phi_cand's depth rule reads it as it reads a detection's box).
+    area (x, y, w, h) pixels: where phi_cand's candidates lie: the box enlarged by the margin,
+    times ``scale``, clipped to the image. scale >= 1: the widening (1 = narrowest).
+    """
+
+    box: Box
+    area: Box
+    scale: float = 1.0
+
+    @property
+    def narrowest(self) -> bool:
+        """The region is not widened: its box may stand in for a detection's (cue_box)."""
+        return self.scale <= 1.0
+
+
 @dataclass
 class Frame:
     """One camera frame: rgb (H,W,3) uint8, depth (H,W) float32 m (0 = missing) or None,
-    K (3,3) OpenCV intrinsics, box (x, y, w, h) pixels of the object's detection or None."""
+    K (3,3) OpenCV intrinsics, box (x, y, w, h) pixels of the object's detection or None,
+    region: where to search when there is no detection (None: predict only)."""
 
     rgb: np.ndarray
     depth: np.ndarray | None
     K: np.ndarray
     box: Box | None = None
+    region: Region | None = None
+
+    def cue_box(self) -> Box | None:
+        """The box whose centre crop informs phi_cand's orientations and MCL + E2E's
+        single-frame estimate: the detection, else the narrowest search region's box (once
+        widened the estimate's place is in doubt: None). Not valid-checked."""
+        if self.box is not None:
+            return self.box
+        if self.region is not None and self.region.narrowest:
+            return self.region.box
+        return None
 
 
 @dataclass
@@ -96,6 +128,8 @@ class TrackResult:
     sum_L, sum_C: sums of the likelihoods over the particles (nan when not computed).
     ess: effective sample size of the normalised weights (nan if not weighed).
     stage_ms: milliseconds per stage. ok: an estimate exists. weighed: this frame was scored.
+    region: the search region's area (x, y, w, h) pixels offered to phi_cand on a frame without
+    a detection (None: the frame had a detection, or nothing to search from).
     """
 
     R: np.ndarray | None
@@ -107,3 +141,4 @@ class TrackResult:
     stage_ms: dict[str, float]
     ok: bool
     weighed: bool = False
+    region: Box | None = None

@@ -1,0 +1,185 @@
+"""Detector-free tracking: where phi_cand searches in a frame without a detection box.
+
+Once a filter is initialised (by its first detection box), a frame without a box gets a search
+region from the current estimate (``Region``, ``Frame.region``): its box is the model's
+projected bounding box at the estimated pose (the bounding box of the projected
+``chpf.tracking.model_outline`` points, the box a perfect detector would give), and its area,
+where the candidates lie, is that box with each side times (1 + ``margin``), times the
+widening ``scale``, clipped to the image.
+
+The widening follows the filter's doubt. A weighed frame is *doubtful* when
+
+- the method has a Counter-Hypothetical likelihood (CH-PF, CH-RBPF: ``sum_C`` is recorded):
+  its alpha = S_C / (S_C + S_L) is above ``alpha_doubt``;
+- any other method: the mean unnormalised likelihood of its particles, sum_L / N, is below
+  ``l_doubt``.
+
+After ``patience`` doubtful frames in a row the scale grows by ``widen`` at every further
+doubtful frame, until the area covers the whole image; every frame that is not doubtful
+divides it by ``widen`` again, down to 1. Predict-only frames change nothing. While the region
+is widened its box no longer stands in for a detection's (``Frame.cue_box``): phi_cand's
+orientations then come from its uniform share and the codebook look-up of the widest crop is
+skipped.
+
+``box_source`` (the ``search`` section of the tracking config) picks the box of each frame:
+``auto`` the detection when the frame has one, else the search region; ``detections`` the
+detection only (a frame without one is predict-only: no search region); ``estimate`` the
+search region on every frame after the first detection (later detections are ignored).
+"""
+
+from __future__ import annotations
+
+import math
+import typing
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from chpf.config_schema import Section, setting
+from chpf.tracking.types import Box, Region, TrackResult
+
+BoxSourceName = Literal["auto", "detections", "estimate"]
+BOX_SOURCES: tuple[str, ...] = typing.get_args(BoxSourceName)
+"""Where a frame's box comes from (module docstring)."""
+
+
+@dataclass
+class SearchConfig(Section):
+    """The search region of frames without a detection (chpf.tracking.search_region):
+    box_source (BOX_SOURCES); margin, the estimate's box side x (1 + margin); widen, the
+    area's scale factor per doubtful frame; patience, doubtful frames in a row before it
+    widens; alpha_doubt, CH-PF's / CH-RBPF's alpha above which a frame is doubtful; l_doubt,
+    the mean L of the particles below which a frame of another method is doubtful."""
+
+    box_source: BoxSourceName = "auto"
+    margin: float = setting(0.2, ge=0.0)
+    widen: float = setting(1.5, gt=1.0)
+    patience: int = setting(3, ge=1)
+    alpha_doubt: float = setting(0.4, ge=0.0, le=1.0)
+    l_doubt: float = setting(0.55, ge=0.0, le=1.0)
+
+
+def projected_box(points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> Box | None:
+    """The bounding box (x, y, w, h) pixels of ``points`` (M,3) metres, object frame, under the
+    pose R (3,3), t (3,) metres with intrinsics K (3,3); None when a point is not in front of
+    the camera (z <= 1 mm) or the box is empty."""
+    cam = points @ np.asarray(R, dtype=np.float64).T + np.asarray(t, dtype=np.float64)
+    if cam.shape[0] == 0 or np.min(cam[:, 2]) <= 1e-3:
+        return None
+    u = K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2]
+    v = K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]
+    x0, y0 = float(u.min()), float(v.min())
+    w, h = float(u.max()) - x0, float(v.max()) - y0
+    if not (w > 0 and h > 0 and math.isfinite(w + h)):
+        return None
+    return (x0, y0, w, h)
+
+
+def scaled_box(box: Box, scale: float) -> Box:
+    """``box`` with its width and height times ``scale``, about its centre."""
+    cx, cy = box[0] + 0.5 * box[2], box[1] + 0.5 * box[3]
+    w, h = box[2] * scale, box[3] * scale
+    return (cx - 0.5 * w, cy - 0.5 * h, w, h)
+
+
+def full_scale(box: Box, width: int, height: int) -> float:
+    """The least scale at which ``scaled_box(box, scale)`` covers the width x height image."""
+    cx, cy = box[0] + 0.5 * box[2], box[1] + 0.5 * box[3]
+    sx = 2.0 * max(cx, width - cx) / box[2]
+    sy = 2.0 * max(cy, height - cy) / box[3]
+    return max(sx, sy, 1.0)
+
+
+def clip_box(box: Box, width: int, height: int) -> Box | None:
+    """``box`` clipped to the width x height image; None when nothing of it is inside."""
+    x0, y0 = max(box[0], 0.0), max(box[1], 0.0)
+    x1, y1 = min(box[0] + box[2], float(width)), min(box[1] + box[3], float(height))
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return (x0, y0, x1 - x0, y1 - y0)
+
+
+class SearchRegion:
+    """One tracked object's search region (module docstring).
+
+    config: the ``search`` section; points: (M,3) metres, object frame, the model points whose
+    projection bounds the object (a callable giving them: computed on first use).
+    State: ``scale`` (>= 1), ``streak`` (doubtful weighed frames in a row).
+    """
+
+    def __init__(self, config: SearchConfig, points: np.ndarray | Callable[[], np.ndarray]):
+        self.config = config
+        self._points = points
+        self.reset()
+
+    def reset(self) -> None:
+        """Narrowest region, no doubt (start of a sequence)."""
+        self.scale = 1.0
+        self.streak = 0
+        self._full = math.inf  # the scale that covered the image at the last region
+        self._box: Box | None = None  # the last region's box
+
+    @property
+    def points(self) -> np.ndarray:
+        if callable(self._points):
+            self._points = np.asarray(self._points(), dtype=np.float64)
+        return self._points
+
+    def region(
+        self, R: np.ndarray, t: np.ndarray, K: np.ndarray, width: int, height: int
+    ) -> Region | None:
+        """The search region around the estimate R (3,3), t (3,) metres in a width x height
+        image with intrinsics K (3,3). Its area is the whole image when the estimate's box
+        lies outside the image, or when the estimate is not in front of the camera (then the
+        box is the last region's; None when there is none)."""
+        whole = (0.0, 0.0, float(width), float(height))
+        box = projected_box(self.points, R, t, K)
+        if box is None:
+            return None if self._box is None else Region(self._box, whole, math.inf)
+        self._box = box
+        base = scaled_box(box, 1.0 + self.config.margin)
+        self._full = full_scale(base, width, height)
+        scale = min(self.scale, self._full)
+        area = clip_box(scaled_box(base, scale), width, height)
+        return Region(box, whole, math.inf) if area is None else Region(box, area, scale)
+
+    def doubtful(self, result: TrackResult, n_particles: int) -> bool | None:
+        """Whether a frame's result shows doubt (module docstring); None for a frame that was
+        not weighed (predict-only)."""
+        if not result.weighed:
+            return None
+        if math.isfinite(result.sum_C):
+            return bool(result.alpha > self.config.alpha_doubt)
+        mean_l = result.sum_L / n_particles if math.isfinite(result.sum_L) else 0.0
+        return bool(mean_l < self.config.l_doubt)
+
+    def update(self, result: TrackResult, n_particles: int) -> None:
+        """Widen or shrink after a frame (module docstring); N = ``n_particles``."""
+        doubt = self.doubtful(result, n_particles)
+        if doubt is None:
+            return
+        if not doubt:
+            self.streak = 0
+            self.scale = max(self.scale / self.config.widen, 1.0)
+            return
+        self.streak += 1
+        if self.streak >= self.config.patience:
+            self.scale = min(self.scale * self.config.widen, max(self._full, 1.0))
+
+    def frame_inputs(
+        self,
+        detection: Box | None,
+        estimate: tuple[np.ndarray, np.ndarray] | None,
+        K: np.ndarray,
+        width: int,
+        height: int,
+    ) -> tuple[Box | None, Region | None]:
+        """(box, region) of a frame for the filter, by ``box_source``: ``detection`` the
+        frame's checked detection or None; ``estimate`` the filter's (R, t) or None before the
+        first detection (then the detection alone)."""
+        source = self.config.box_source
+        if estimate is None or source == "detections" or (source == "auto" and detection):
+            return detection, None
+        return None, self.region(estimate[0], estimate[1], K, width, height)
