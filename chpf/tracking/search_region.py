@@ -4,10 +4,10 @@ Once a filter is initialised (by its first detection box), a frame without a box
 region from the current estimate (``Region``, ``Frame.region``): its box is the model's
 projected bounding box at the estimated pose (the bounding box of the projected
 ``chpf.tracking.model_outline`` points, the box a perfect detector would give), and its area,
-where the candidates lie, is that box with each side times (1 + ``margin``), times the
-widening ``scale``, clipped to the image.
+where the candidates lie, is that box with each side times (1 + ``margin``), clipped to the
+image. phi_cand reads the box as it reads a detection's (chpf.tracking.candidates).
 
-The widening follows the filter's doubt. A weighed frame is *doubtful* when
+The region widens with the filter's doubt. A weighed frame is *doubtful* when
 
 - the method has a Counter-Hypothetical likelihood (CH-PF, CH-RBPF: ``sum_C`` is recorded):
   its alpha = S_C / (S_C + S_L) is above ``alpha_doubt``;
@@ -15,11 +15,16 @@ The widening follows the filter's doubt. A weighed frame is *doubtful* when
   ``l_doubt``.
 
 After ``patience`` doubtful frames in a row the scale grows by ``widen`` at every further
-doubtful frame, until the area covers the whole image; every frame that is not doubtful
-divides it by ``widen`` again, down to 1. Predict-only frames change nothing. While the region
-is widened its box no longer stands in for a detection's (``Frame.cue_box``): phi_cand's
-orientations then come from its uniform share and the codebook look-up of the widest crop is
-skipped.
+doubtful frame, until the window (the area times the scale, clipped) covers the whole image;
+every frame that is not doubtful divides it by ``widen`` again, down to 1. Predict-only frames
+change nothing. A widened window is scanned with probe boxes: a grid at half the estimate's
+box (at most ``probes`` boxes; shifted at random each frame), each box of a random size from
+1 / ``probe_sizes`` to ``probe_sizes`` times the estimate's box (its depth is in doubt too).
+The likelihood's autoencoder scores the crop at each probe (its best cosine with the whole
+codebook, ``BundleLikelihood.probe_similarities``: one encoder pass of the probes' crops);
+the best probe becomes the region's box, so phi_cand draws around it, at its depth, with
+orientations that match its crop. Once the candidates there score well the doubt falls and
+the region shrinks back onto the estimate.
 
 ``box_source`` (the ``search`` section of the tracking config) picks the box of each frame:
 ``auto`` the detection when the frame has one, else the search region; ``detections`` the
@@ -32,13 +37,13 @@ from __future__ import annotations
 import math
 import typing
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, replace
+from typing import Literal, Protocol
 
 import numpy as np
 
 from chpf.config_schema import Section, setting
-from chpf.tracking.types import Box, Region, TrackResult
+from chpf.tracking.types import Box, Frame, Region, TrackResult
 
 BoxSourceName = Literal["auto", "detections", "estimate"]
 BOX_SOURCES: tuple[str, ...] = typing.get_args(BoxSourceName)
@@ -51,7 +56,9 @@ class SearchConfig(Section):
     box_source (BOX_SOURCES); margin, the estimate's box side x (1 + margin); widen, the
     area's scale factor per doubtful frame; patience, doubtful frames in a row before it
     widens; alpha_doubt, CH-PF's / CH-RBPF's alpha above which a frame is doubtful; l_doubt,
-    the mean L of the particles below which a frame of another method is doubtful."""
+    the mean L of the particles below which a frame of another method is doubtful; probes,
+    the most boxes scored per frame in a widened window; probe_sizes, their sizes range from
+    1 / probe_sizes to probe_sizes times the estimate's box (log-uniform)."""
 
     box_source: BoxSourceName = "auto"
     margin: float = setting(0.2, ge=0.0)
@@ -59,6 +66,14 @@ class SearchConfig(Section):
     patience: int = setting(3, ge=1)
     alpha_doubt: float = setting(0.4, ge=0.0, le=1.0)
     l_doubt: float = setting(0.55, ge=0.0, le=1.0)
+    probes: int = setting(64, ge=1)
+    probe_sizes: float = setting(2.0, ge=1.0)
+
+
+class Prober(Protocol):
+    """What the probes need from a likelihood (BundleLikelihood has it)."""
+
+    def probe_similarities(self, frame: Frame, boxes: np.ndarray) -> np.ndarray: ...
 
 
 def projected_box(points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> Box | None:
@@ -105,17 +120,24 @@ class SearchRegion:
     """One tracked object's search region (module docstring).
 
     config: the ``search`` section; points: (M,3) metres, object frame, the model points whose
-    projection bounds the object (a callable giving them: computed on first use).
-    State: ``scale`` (>= 1), ``streak`` (doubtful weighed frames in a row).
+    projection bounds the object (a callable giving them: computed on first use); prober: what
+    scores the probes of a widened window (None: no probes, phi_cand draws in the estimate's
+    area). State: ``scale`` (>= 1), ``streak`` (doubtful weighed frames in a row).
     """
 
-    def __init__(self, config: SearchConfig, points: np.ndarray | Callable[[], np.ndarray]):
+    def __init__(
+        self,
+        config: SearchConfig,
+        points: np.ndarray | Callable[[], np.ndarray],
+        prober: Prober | None = None,
+    ) -> None:
         self.config = config
         self._points = points
+        self.prober = prober
         self.reset()
 
     def reset(self) -> None:
-        """Narrowest region, no doubt (start of a sequence)."""
+        """Not widened, no doubt (start of a sequence)."""
         self.scale = 1.0
         self.streak = 0
         self._full = math.inf  # the scale that covered the image at the last region
@@ -131,19 +153,65 @@ class SearchRegion:
         self, R: np.ndarray, t: np.ndarray, K: np.ndarray, width: int, height: int
     ) -> Region | None:
         """The search region around the estimate R (3,3), t (3,) metres in a width x height
-        image with intrinsics K (3,3). Its area is the whole image when the estimate's box
-        lies outside the image, or when the estimate is not in front of the camera (then the
-        box is the last region's; None when there is none)."""
+        image with intrinsics K (3,3), without probes. Its window is the whole image when the
+        estimate's box lies outside the image, or when the estimate is not in front of the
+        camera (then the box is the last region's; None when there is none)."""
         whole = (0.0, 0.0, float(width), float(height))
         box = projected_box(self.points, R, t, K)
         if box is None:
-            return None if self._box is None else Region(self._box, whole, math.inf)
+            if self._box is None:
+                return None
+            return Region(self._box, whole, whole, math.inf)
         self._box = box
         base = scaled_box(box, 1.0 + self.config.margin)
         self._full = full_scale(base, width, height)
         scale = min(self.scale, self._full)
-        area = clip_box(scaled_box(base, scale), width, height)
-        return Region(box, whole, math.inf) if area is None else Region(box, area, scale)
+        area = clip_box(base, width, height) or whole
+        window = clip_box(scaled_box(base, scale), width, height)
+        if window is None:
+            return Region(box, whole, whole, math.inf)
+        return Region(box, area, window, scale)
+
+    def probe_boxes(self, region: Region, rng: np.random.Generator) -> np.ndarray:
+        """The probes (M,4) (x, y, w, h) pixels of a widened region: a grid over its window
+        whose step is half the region box's width and height (larger when that gives more than
+        ``probes``), shifted at random by up to one step, each box of the region box's size
+        times a log-uniform factor in [1 / probe_sizes, probe_sizes]."""
+        win, (w, h) = region.window, region.box[2:]
+        step_x, step_y = 0.5 * w, 0.5 * h
+        nx, ny = max(int(win[2] / step_x), 1), max(int(win[3] / step_y), 1)
+        thin = math.sqrt(nx * ny / self.config.probes)
+        if thin > 1.0:
+            nx, ny = max(int(nx / thin), 1), max(int(ny / thin), 1)
+        step_x, step_y = win[2] / nx, win[3] / ny
+        gx, gy = np.meshgrid(np.arange(nx), np.arange(ny))
+        cx = win[0] + (gx.ravel() + rng.random()) * step_x
+        cy = win[1] + (gy.ravel() + rng.random()) * step_y
+        size = np.exp(rng.uniform(-1.0, 1.0, cx.shape[0]) * math.log(self.config.probe_sizes))
+        return np.stack([cx - w * size / 2, cy - h * size / 2, w * size, h * size], axis=1)
+
+    def probe(self, frame: Frame, region: Region, rng: np.random.Generator) -> Region:
+        """``region`` with its box moved to the best probe (the highest
+        ``probe_similarities``) and its area around that box. Two passes: ``probe_boxes``, then
+        ``probes`` / 2 boxes around the best of them (centres within half a grid step, sizes
+        within 25 %)."""
+        assert self.prober is not None
+        boxes = self.probe_boxes(region, rng)
+        sims = np.asarray(self.prober.probe_similarities(frame, boxes))
+        best = boxes[int(np.argmax(sims))]
+        n = max(self.config.probes // 2, 1)
+        cx = best[0] + 0.5 * best[2] + 0.25 * best[2] * rng.uniform(-1.0, 1.0, n)
+        cy = best[1] + 0.5 * best[3] + 0.25 * best[3] * rng.uniform(-1.0, 1.0, n)
+        size = np.exp(rng.uniform(-1.0, 1.0, n) * math.log(1.25))
+        w, h = best[2] * size, best[3] * size
+        fine = np.stack([cx - w / 2, cy - h / 2, w, h], axis=1)
+        fine_sims = np.asarray(self.prober.probe_similarities(frame, fine))
+        if fine_sims.max() > sims.max():
+            best = fine[int(np.argmax(fine_sims))]
+        box = (float(best[0]), float(best[1]), float(best[2]), float(best[3]))
+        height, width = frame.rgb.shape[:2]
+        area = clip_box(scaled_box(box, 1.0 + self.config.margin), width, height)
+        return Region(box, area or region.window, region.window, region.scale)
 
     def doubtful(self, result: TrackResult, n_particles: int) -> bool | None:
         """Whether a frame's result shows doubt (module docstring); None for a frame that was
@@ -168,18 +236,22 @@ class SearchRegion:
         if self.streak >= self.config.patience:
             self.scale = min(self.scale * self.config.widen, max(self._full, 1.0))
 
-    def frame_inputs(
+    def frame(
         self,
-        detection: Box | None,
+        frame: Frame,
         estimate: tuple[np.ndarray, np.ndarray] | None,
-        K: np.ndarray,
-        width: int,
-        height: int,
-    ) -> tuple[Box | None, Region | None]:
-        """(box, region) of a frame for the filter, by ``box_source``: ``detection`` the
-        frame's checked detection or None; ``estimate`` the filter's (R, t) or None before the
-        first detection (then the detection alone)."""
+        rng: np.random.Generator,
+    ) -> Frame:
+        """The frame the filter steps, by ``box_source``: ``frame`` as it is (its box: the
+        checked detection or None), or with the search region around ``estimate`` (the
+        filter's (R, t); None before the first detection: the frame as it is) instead of its
+        box, probed with ``rng`` when widened."""
         source = self.config.box_source
-        if estimate is None or source == "detections" or (source == "auto" and detection):
-            return detection, None
-        return None, self.region(estimate[0], estimate[1], K, width, height)
+        detected = frame.box is not None
+        if estimate is None or source == "detections" or (source == "auto" and detected):
+            return frame
+        height, width = frame.rgb.shape[:2]
+        region = self.region(estimate[0], estimate[1], frame.K, width, height)
+        if region is not None and region.scale > 1.0 and self.prober is not None:
+            region = self.probe(frame, region, rng)
+        return replace(frame, box=None, region=region)

@@ -156,7 +156,7 @@ class Tracker:
             method, self.likelihood, cfg, self.candidates, np.random.default_rng(self.seed)
         )
         self.boxes = BoxChecker("Tracker.step")  # warns once per tracker
-        self.search = SearchRegion(cfg.search, lambda: outline_points(bundle))
+        self.search = SearchRegion(cfg.search, lambda: outline_points(bundle), self.likelihood)
         self.frame = 0  # frames stepped since the last reset
 
     @classmethod
@@ -205,7 +205,7 @@ class Tracker:
         self.frame = 0
         self.filter.reset()
         self.search.reset()
-        self.filter.rng = np.random.default_rng(self.seed)  # type: ignore[attr-defined]
+        self.filter.rng = np.random.default_rng(self.seed)
 
     def step(
         self,
@@ -229,9 +229,10 @@ class Tracker:
         elif depth is not None:
             depth = depth_in_metres(depth)
         self.frame += 1
-        h, w = rgb.shape[:2]
-        det, region = self.search.frame_inputs(checked, self.filter.estimate, K_arr, w, h)
-        result = self.filter.step(Frame(rgb=rgb, depth=depth, K=K_arr, box=det, region=region))
+        frame = self.search.frame(
+            Frame(rgb=rgb, depth=depth, K=K_arr, box=checked), self.filter.estimate, self.filter.rng
+        )
+        result = self.filter.step(frame)
         self.search.update(result, self.config.filter.n_particles)
-        result.region = None if region is None else region.area
+        result.region = None if frame.region is None else frame.region.window
         return result

@@ -16,20 +16,19 @@ Box = tuple[float, float, float, float]
 class Region:
     """A search region of a frame without a detection (chpf.tracking.search_region).
 
-    box (x, y, w, h) pixels: the model's projected bounding box at the current estimate, the
-    object's size there (phi_cand's depth rule reads it as it reads a detection's box).
-    area (x, y, w, h) pixels: where phi_cand's candidates lie: the box enlarged by the margin,
-    times ``scale``, clipped to the image. scale >= 1: the widening (1 = narrowest).
+    box (x, y, w, h) pixels: where the object is looked for, at its projected size: the model's
+    projected bounding box at the current estimate, or, once the region is widened, the
+    best-matching probe box in the window (phi_cand's depth rule and box-centre look-up read
+    it as they read a detection's box). area (x, y, w, h) pixels: where phi_cand's candidates
+    lie: the box enlarged by the margin, clipped to the image. window (x, y, w, h) pixels: the
+    part of the image searched: the area at scale 1, else the estimate's area times ``scale``
+    (clipped). scale >= 1: the widening (1 = not widened).
     """
 
     box: Box
     area: Box
+    window: Box
     scale: float = 1.0
-
-    @property
-    def narrowest(self) -> bool:
-        """The region is not widened: its box may stand in for a detection's (cue_box)."""
-        return self.scale <= 1.0
 
 
 @dataclass
@@ -46,13 +45,10 @@ class Frame:
 
     def cue_box(self) -> Box | None:
         """The box whose centre crop informs phi_cand's orientations and MCL + E2E's
-        single-frame estimate: the detection, else the narrowest search region's box (once
-        widened the estimate's place is in doubt: None). Not valid-checked."""
+        single-frame estimate: the detection, else the search region's box (not checked)."""
         if self.box is not None:
             return self.box
-        if self.region is not None and self.region.narrowest:
-            return self.region.box
-        return None
+        return None if self.region is None else self.region.box
 
 
 @dataclass
@@ -128,8 +124,8 @@ class TrackResult:
     sum_L, sum_C: sums of the likelihoods over the particles (nan when not computed).
     ess: effective sample size of the normalised weights (nan if not weighed).
     stage_ms: milliseconds per stage. ok: an estimate exists. weighed: this frame was scored.
-    region: the search region's area (x, y, w, h) pixels offered to phi_cand on a frame without
-    a detection (None: the frame had a detection, or nothing to search from).
+    region: the search region's window (x, y, w, h) pixels searched on a frame without a
+    detection (None: the frame had a detection, or nothing to search from).
     """
 
     R: np.ndarray | None
