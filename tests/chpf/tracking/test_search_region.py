@@ -46,7 +46,7 @@ def test_the_estimate_region_is_the_projected_model_box_enlarged_by_the_margin()
     side_w, side_h = 1.2 * (x1 - x0), 1.2 * (y1 - y0)
     cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
     np.testing.assert_allclose(region.area, (cx - side_w / 2, cy - side_h / 2, side_w, side_h))
-    assert region.scale == 1.0 and region.narrowest
+    assert region.scale == 1.0 and region.window == region.area
     # turned 45 degrees about the optical axis: the corners reach 0.05 sqrt(2) from the centre
     R = cv2.Rodrigues(np.array([0.0, 0.0, np.pi / 4]))[0]
     turned = search.region(R, t, K, W, H)
@@ -59,11 +59,11 @@ def test_doubt_widens_the_region_after_patience_up_to_the_whole_image_then_shrin
     cfg = SearchConfig(margin=0.0, widen=2.0, patience=3, alpha_doubt=0.5)
     search = SearchRegion(cfg, CUBE)
     R, t = np.eye(3), np.array([0.0, 0.0, 1.0])  # a 32 px box at the image centre
-    base = search.region(R, t, K, W, H).area
+    base = search.region(R, t, K, W, H).window
     areas = []
     for _ in range(9):
         search.update(DOUBT, 50)
-        areas.append(search.region(R, t, K, W, H).area)
+        areas.append(search.region(R, t, K, W, H).window)
     widths = [a[2] for a in areas]
     # two doubtful frames change nothing; from the third on each one doubles the side
     assert widths[:2] == [pytest.approx(base[2])] * 2
@@ -79,8 +79,10 @@ def test_doubt_widens_the_region_after_patience_up_to_the_whole_image_then_shrin
     full = 2 * max(cx, W - cx) / base[2]
     expected = [max(full / 2**k, 1.0) for k in range(1, 7)]  # 5.1, 2.5, 1.3, 1, 1, 1
     assert [r.scale for r in shrunk] == pytest.approx(expected)
-    assert [r.area[2] for r in shrunk[2:]] == pytest.approx([expected[2] * base[2]] + [base[2]] * 3)
-    assert shrunk[-1].narrowest
+    assert [r.window[2] for r in shrunk[2:]] == pytest.approx(
+        [expected[2] * base[2]] + [base[2]] * 3
+    )
+    assert shrunk[-1].scale == 1.0 and all(r.area == shrunk[-1].area for r in shrunk)
     # a calm frame in the middle of a doubtful run starts the patience again
     for _ in range(2):
         search.update(DOUBT, 50)
@@ -105,10 +107,12 @@ def test_doubt_of_methods_without_c_is_the_mean_likelihood_and_predict_only_fram
 def test_box_source_picks_the_detection_or_the_region():
     est = (np.eye(3), np.array([0.0, 0.0, 1.0]))
     det = (10.0, 20.0, 30.0, 40.0)
+    rgb = np.zeros((H, W, 3), np.uint8)
 
     def inputs(source, detection, estimate=est):
         search = SearchRegion(SearchConfig(box_source=source), CUBE)
-        return search.frame_inputs(detection, estimate, K, W, H)
+        frame = search.frame(Frame(rgb, None, K, detection), estimate, np.random.default_rng(0))
+        return frame.box, frame.region
 
     assert inputs("auto", det) == (det, None)
     box, region = inputs("auto", None)
@@ -121,11 +125,45 @@ def test_box_source_picks_the_detection_or_the_region():
         make_config(None, ["search.box_source=sometimes"])
 
 
+class PeakProber:
+    """probe_similarities peaking at boxes centred on ``centre`` with side ``side`` pixels."""
+
+    def __init__(self, centre, side):
+        self.centre, self.side, self.calls = np.array(centre), side, 0
+
+    def probe_similarities(self, frame, boxes):
+        self.calls += 1
+        c = boxes[:, :2] + boxes[:, 2:] / 2
+        off = np.linalg.norm(c - self.centre, axis=1) / self.side
+        return 1.0 - off - np.abs(np.log(boxes[:, 2] / self.side))
+
+
+def test_a_widened_window_is_probed_and_its_best_box_becomes_phi_cands():
+    prober = PeakProber((250.0, 60.0), 40.0)  # the object: far from the estimate
+    search = SearchRegion(SearchConfig(patience=1, widen=2.0, probes=64), CUBE, prober)
+    est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # a 32 px box around (130, 135)
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
+    rng = np.random.default_rng(0)
+    narrow = search.frame(frame, est, rng).region
+    assert prober.calls == 0 and narrow.box == search.region(*est, K, W, H).box  # no probes
+    for _ in range(6):
+        search.update(DOUBT, 50)
+    wide = search.frame(frame, est, rng).region
+    assert wide.window == (0.0, 0.0, float(W), float(H)) and prober.calls == 2
+    centre = np.array(wide.box[:2]) + np.array(wide.box[2:]) / 2
+    assert np.linalg.norm(centre - (250.0, 60.0)) < 15.0  # the probes found it
+    assert 0.7 < wide.box[2] / 40.0 < 1.4
+    side = np.array(wide.box[2:]) * 1.2
+    np.testing.assert_allclose(wide.area, (*(centre - side / 2), *side))  # phi_cand's area
+    boxes = search.probe_boxes(wide, np.random.default_rng(1))
+    assert len(boxes) <= 64 and boxes[:, 0].min() < 40 and boxes[:, 0].max() > 250
+
+
 def test_phi_cand_draws_inside_the_region_with_the_depth_of_its_object_box():
     sampler = CandidateSampler(box_extent=0.1, z_box_factors=(0.8, 1.25), uv_fraction=0.3)
     obj = (150.0, 110.0, 30.0, 30.0)  # the object's box at the estimate: z_box = 1 m
     area = (60.0, 40.0, 200.0, 160.0)
-    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K, None, Region(obj, area, 4.0))
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K, None, Region(obj, area, area, 4.0))
     t = sampler.translations(2000, frame, np.random.default_rng(0))
     u = K[0, 0] * t[:, 0] / t[:, 2] + K[0, 2]
     v = K[1, 1] * t[:, 1] / t[:, 2] + K[1, 2]
