@@ -17,8 +17,11 @@ The region widens with the filter's doubt. A weighed frame is *doubtful* when
 After ``patience`` doubtful frames in a row the scale grows by ``widen`` at every further
 doubtful frame, until the window (the area times the scale, clipped) covers the whole image;
 every frame that is not doubtful divides it by ``widen`` again, down to 1. Predict-only frames
-change nothing. A widened window is scanned with probe boxes: a grid at half the estimate's
-box (at most ``probes`` boxes; shifted at random each frame), each box of a random size from
+change nothing. Without probes (``probes: 0``, the default) phi_cand draws its candidates'
+centres in the whole window and, once widened, its orientations uniformly (no look-up crop:
+the estimate's place is in doubt); with ``probes`` > 0 a widened window is scanned with
+probe boxes: a grid at half the estimate's box (at most ``probes`` boxes; shifted at random
+each frame), each box of a random size from
 1 / ``probe_sizes`` to ``probe_sizes`` times the estimate's box (its depth is in doubt too).
 The likelihood's autoencoder scores the crop at each probe (its best cosine with the whole
 codebook, ``BundleLikelihood.probe_similarities``: one encoder pass of the probes' crops);
@@ -57,7 +60,8 @@ class SearchConfig(Section):
     area's scale factor per doubtful frame; patience, doubtful frames in a row before it
     widens; alpha_doubt, CH-PF's / CH-RBPF's alpha above which a frame is doubtful; l_doubt,
     the mean L of the particles below which a frame of another method is doubtful; probes,
-    the most boxes scored per frame in a widened window; probe_sizes, their sizes range from
+    the most boxes scored per frame in a widened window (0: no probes, phi_cand draws around
+    the estimate's box in any window); probe_sizes, their sizes range from
     1 / probe_sizes to probe_sizes times the estimate's box (log-uniform)."""
 
     box_source: BoxSourceName = "auto"
@@ -66,7 +70,7 @@ class SearchConfig(Section):
     patience: int = setting(3, ge=1)
     alpha_doubt: float = setting(0.4, ge=0.0, le=1.0)
     l_doubt: float = setting(0.55, ge=0.0, le=1.0)
-    probes: int = setting(64, ge=1)
+    probes: int = setting(0, ge=0)
     probe_sizes: float = setting(2.0, ge=1.0)
 
 
@@ -153,7 +157,9 @@ class SearchRegion:
         self, R: np.ndarray, t: np.ndarray, K: np.ndarray, width: int, height: int
     ) -> Region | None:
         """The search region around the estimate R (3,3), t (3,) metres in a width x height
-        image with intrinsics K (3,3), without probes. Its window is the whole image when the
+        image with intrinsics K (3,3), without probes: phi_cand's area is the whole window,
+        and a widened one gives no look-up crop (``Region.cue``). Its window is the whole image
+        when the
         estimate's box lies outside the image, or when the estimate is not in front of the
         camera (then the box is the last region's; None when there is none)."""
         whole = (0.0, 0.0, float(width), float(height))
@@ -161,16 +167,15 @@ class SearchRegion:
         if box is None:
             if self._box is None:
                 return None
-            return Region(self._box, whole, whole, math.inf)
+            return Region(self._box, whole, whole, math.inf, cue=False)
         self._box = box
         base = scaled_box(box, 1.0 + self.config.margin)
         self._full = full_scale(base, width, height)
         scale = min(self.scale, self._full)
-        area = clip_box(base, width, height) or whole
         window = clip_box(scaled_box(base, scale), width, height)
         if window is None:
-            return Region(box, whole, whole, math.inf)
-        return Region(box, area, window, scale)
+            return Region(box, whole, whole, math.inf, cue=False)
+        return Region(box, window, window, scale, cue=scale <= 1.0)
 
     def probe_boxes(self, region: Region, rng: np.random.Generator) -> np.ndarray:
         """The probes (M,4) (x, y, w, h) pixels of a widened region: a grid over its window
@@ -252,6 +257,7 @@ class SearchRegion:
             return frame
         height, width = frame.rgb.shape[:2]
         region = self.region(estimate[0], estimate[1], frame.K, width, height)
-        if region is not None and region.scale > 1.0 and self.prober is not None:
+        probing = self.prober is not None and self.config.probes > 0
+        if region is not None and region.scale > 1.0 and probing:
             region = self.probe(frame, region, rng)
         return replace(frame, box=None, region=region)

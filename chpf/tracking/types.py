@@ -20,15 +20,17 @@ class Region:
     projected bounding box at the current estimate, or, once the region is widened, the
     best-matching probe box in the window (phi_cand's depth rule and box-centre look-up read
     it as they read a detection's box). area (x, y, w, h) pixels: where phi_cand's candidates
-    lie: the box enlarged by the margin, clipped to the image. window (x, y, w, h) pixels: the
-    part of the image searched: the area at scale 1, else the estimate's area times ``scale``
-    (clipped). scale >= 1: the widening (1 = not widened).
+    lie: the window, or around the best probe. window (x, y, w, h) pixels: the part of the
+    image searched: the estimate's box enlarged by the margin, times ``scale``, clipped.
+    scale >= 1: the widening (1 = not widened). cue: the box's crop may inform phi_cand's
+    orientations and E2E's single-frame estimate (False in a widened window without probes).
     """
 
     box: Box
     area: Box
     window: Box
     scale: float = 1.0
+    cue: bool = True
 
 
 @dataclass
@@ -45,10 +47,11 @@ class Frame:
 
     def cue_box(self) -> Box | None:
         """The box whose centre crop informs phi_cand's orientations and MCL + E2E's
-        single-frame estimate: the detection, else the search region's box (not checked)."""
+        single-frame estimate: the detection, else the search region's box when it may
+        (``Region.cue``); not checked."""
         if self.box is not None:
             return self.box
-        return None if self.region is None else self.region.box
+        return self.region.box if self.region is not None and self.region.cue else None
 
 
 @dataclass
