@@ -9,8 +9,9 @@ jump is not part of a suite's hash). Every method tracks them with the tracking 
 ``--config`` (default: ``search.box_source: estimate``, i.e. the first frame's box only) and
 the seeds; the table printed gives per sequence and seed the frames from the jump to the first
 frame with ADD-S < 0.1 diameter ("-": not within the sequence). ``--figure PNG`` draws the
-search region's width, alpha and the ADD-S error over the frames of the first sequence and
-seed, tracked again with a Tracker (the bench's summaries hold no region).
+search window's width, alpha and the ADD-S error over the frames of the first job that finds
+the object again (else the first job), tracked again with a Tracker (the bench's summaries
+hold no region).
 """
 
 from __future__ import annotations
@@ -144,12 +145,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     jobs = make_jobs(suite, seqs)
     run_jobs(args.out, jobs, suite.tracking.n_particles, config, args.workers, progress=False)
     print(f"frames from the jump to ADD-S < {TRACKED} diameter ('-': never)")
+    found = []
     for job in jobs:
         summary = json.loads((args.out / "jobs" / job.id / "summary.json").read_text())
         n = reacquisition(summary, args.jump)
         print(f"{job.id}: {'-' if n is None else n}")
+        if n is not None:
+            found.append(job)
     if args.figure is not None:
-        draw_figure(seqs[0], config, suite.seeds[0], args.jump, args.figure)
+        shown = (found or jobs)[0]
+        draw_figure(shown.seq, config, shown.seed, args.jump, args.figure)
     return 0
 
 

@@ -82,7 +82,10 @@ def test_doubt_widens_the_region_after_patience_up_to_the_whole_image_then_shrin
     assert [r.window[2] for r in shrunk[2:]] == pytest.approx(
         [expected[2] * base[2]] + [base[2]] * 3
     )
-    assert shrunk[-1].scale == 1.0 and all(r.area == shrunk[-1].area for r in shrunk)
+    assert shrunk[-1].scale == 1.0 and shrunk[-1].window == base
+    # without probes phi_cand draws in the whole window, and once widened without a look-up
+    assert all(r.area == r.window for r in shrunk)
+    assert [r.cue for r in shrunk] == [False] * 3 + [True] * 3
     # a calm frame in the middle of a doubtful run starts the patience again
     for _ in range(2):
         search.update(DOUBT, 50)
