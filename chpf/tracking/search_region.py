@@ -57,11 +57,11 @@ BOX_SOURCES: tuple[str, ...] = typing.get_args(BoxSourceName)
 class SearchConfig(Section):
     """The search region of frames without a detection (chpf.tracking.search_region):
     box_source (BOX_SOURCES); margin, the estimate's box side x (1 + margin); widen, the
-    area's scale factor per doubtful frame; patience, doubtful frames in a row before it
+    window's scale factor per doubtful frame; patience, doubtful frames in a row before it
     widens; alpha_doubt, CH-PF's / CH-RBPF's alpha above which a frame is doubtful; l_doubt,
     the mean L of the particles below which a frame of another method is doubtful; probes,
-    the most boxes scored per frame in a widened window (0: no probes, phi_cand draws around
-    the estimate's box in any window); probe_sizes, their sizes range from
+    the most boxes scored per frame in a widened window (0: no probes, phi_cand draws in the
+    whole window); probe_sizes, their sizes range from
     1 / probe_sizes to probe_sizes times the estimate's box (log-uniform)."""
 
     box_source: BoxSourceName = "auto"
@@ -125,8 +125,8 @@ class SearchRegion:
 
     config: the ``search`` section; points: (M,3) metres, object frame, the model points whose
     projection bounds the object (a callable giving them: computed on first use); prober: what
-    scores the probes of a widened window (None: no probes, phi_cand draws in the estimate's
-    area). State: ``scale`` (>= 1), ``streak`` (doubtful weighed frames in a row).
+    scores the probes of a widened window (None: no probes, phi_cand draws in the whole
+    window). State: ``scale`` (>= 1), ``streak`` (doubtful weighed frames in a row).
     """
 
     def __init__(
