@@ -68,7 +68,7 @@ class SearchConfig(Section):
     margin: float = setting(0.2, ge=0.0)
     widen: float = setting(1.5, gt=1.0)
     patience: int = setting(3, ge=1)
-    alpha_doubt: float = setting(0.4, ge=0.0, le=1.0)
+    alpha_doubt: float = setting(0.6, ge=0.0, le=1.0)
     l_doubt: float = setting(0.55, ge=0.0, le=1.0)
     probes: int = setting(0, ge=0)
     probe_sizes: float = setting(2.0, ge=1.0)
