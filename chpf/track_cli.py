@@ -74,7 +74,16 @@ from chpf.tracking.run_record import (
     track_settings,
 )
 from chpf.tracking.runlog import NETWORK_STAGES
+from chpf.tracking.search_region import BOX_SOURCES
 from chpf.tracking.tracker import Tracker
+
+SEARCH_NOTES = {
+    "auto": "search.box_source auto: a frame without a box is searched around the estimate",
+    "detections": "search.box_source detections: a frame without a box is predict-only",
+    "estimate": "search.box_source estimate: after the first box every frame is searched "
+    "around the estimate, boxes ignored",
+}
+"""What the run's first line says about frames without a box (chpf.tracking.search_region)."""
 
 
 def parse_methods(text: str) -> list[str]:
@@ -210,6 +219,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--n-particles", type=int, default=None, help="particles (filter.n_particles, default 50)"
+    )
+    p.add_argument(
+        "--box-source",
+        choices=BOX_SOURCES,
+        default=None,
+        help="the box of a frame (search.box_source, default auto): auto = its detection, else "
+        "a search region around the estimate that widens while the filter doubts; "
+        "detections = its detection only (none: predict only); estimate = the search region "
+        "after the first box",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-plot", action="store_true", help="skip the PNG plots")
@@ -509,7 +527,7 @@ def track(
         if claim_settings(out, SETTINGS_FILE, settings, args.overwrite or fresh) or fresh:
             clear_outputs(out)
         where = f"networks on the {describe(bundles[0].providers)}, {bundles[0].precision}"
-        print(f"{inp.boxes}; {where}", flush=True)
+        print(f"{inp.boxes} ({SEARCH_NOTES[cfg.search.box_source]}); {where}", flush=True)
         objects = " and ".join(
             f"obj_id {o} ({b.obj_info.name})" for o, b in zip(obj_ids, bundles, strict=True)
         )
@@ -566,6 +584,8 @@ def tracking_config(args: argparse.Namespace) -> Any:
     sections: dict[str, dict[str, Any]] = {}
     if args.n_particles is not None:
         sections["filter"] = {"n_particles": args.n_particles}
+    if args.box_source is not None:
+        sections["search"] = {"box_source": args.box_source}
     runtime = {k: getattr(args, k) for k in ("device", "precision") if getattr(args, k)}
     if runtime:
         sections["runtime"] = runtime

@@ -290,32 +290,44 @@ class BundleLikelihood:
     def box_centre_cosines(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
         """Cosines (K,) of the crop at the detection box's centre with the whole codebook and
         that crop's translation (3,) metres (depth guessed from the box size and the codebook's
-        median object extent); None without a box."""
-        box = valid_box(frame.box)
+        median object extent); the box is ``frame.cue_box()``; None without one."""
+        box = valid_box(frame.cue_box())
         if box is None:
             return None
-        K = np.asarray(frame.K, dtype=np.float64)
-        t0 = backproject(
-            np.array([box[0] + 0.5 * (box[2] - 1.0)]),
-            np.array([box[1] + 0.5 * (box[3] - 1.0)]),
-            np.array([self._box_depth(box, K, self.median_extent_px)]),
-            K,
-        )
+        t0 = self._box_centres(np.array([box]), np.asarray(frame.K, dtype=np.float64))
         return self.codebook_scores(frame, t0).cos[0], t0[0]
 
-    def _box_depth(self, box: tuple[float, float, float, float], K: np.ndarray, extent_px: float):
-        """Depth (m) at which an object of ``extent_px`` crop pixels spans the box."""
+    def probe_similarities(self, frame: Frame, boxes: np.ndarray) -> np.ndarray:
+        """The best cosine with the whole codebook (M,) of the crop at each box's centre, boxes
+        (M,4) (x, y, w, h) pixels, depth from each box's size as ``box_centre_cosines``: how
+        much the object seems to be there (chpf.tracking.search_region's probes)."""
+        t0 = self._box_centres(np.asarray(boxes, dtype=np.float64), np.asarray(frame.K))
+        return self.codebook_scores(frame, t0).cos.max(axis=1)
+
+    def _box_centres(self, boxes: np.ndarray, K: np.ndarray) -> np.ndarray:
+        """Translations (M,3) metres of the object at the centres of boxes (M,4), at the depth
+        where the codebook's median object extent spans each box."""
+        return backproject(
+            boxes[:, 0] + 0.5 * (boxes[:, 2] - 1.0),
+            boxes[:, 1] + 0.5 * (boxes[:, 3] - 1.0),
+            self._box_depth(boxes, K, self.median_extent_px),
+            np.asarray(K, dtype=np.float64),
+        )
+
+    def _box_depth(self, boxes: np.ndarray, K: np.ndarray, extent_px: float) -> np.ndarray:
+        """Depth (m) (M,) at which an object of ``extent_px`` crop pixels spans boxes (M,4)."""
         return (
             self.spec.render_distance
-            * (extent_px / max(box[2], box[3]))
+            * (extent_px / np.maximum(boxes[:, 2], boxes[:, 3]))
             * (K[0, 0] / self.spec.focal)
         )
 
     # ------------------------------------------------------------------ MCL + E2E
     def single_frame_estimate(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
-        """Pose from the detection box alone: the codebook entry with the best cosine for the
-        crop at the box centre (box_centre_cosines) gives R_allo, that entry's own extent vs the
-        box gives z; then egocentric through the ray of the box centre. None without a box."""
+        """Pose from the detection box (``frame.cue_box()``) alone: the codebook entry with the
+        best cosine for the crop at the box centre (box_centre_cosines) gives R_allo, that
+        entry's own extent vs the box gives z; then egocentric through the ray of the box
+        centre. None without a box."""
         found = self.box_centre_cosines(frame)
         if found is None:
             return None

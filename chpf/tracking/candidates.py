@@ -14,6 +14,12 @@ that fraction of its width and height around its centre); the depth z is
   the box shows only the visible part) and counts as a hole. Holes: the median of the valid
   depths in a small window around (u, v), else of the valid depths in the whole box, else the
   RGB rule.
+
+A frame without a detection may carry a search region (``Frame.region``,
+chpf.tracking.search_region): then (u, v) is uniform in the region's area less the border a
+detection's box leaves around its central part, (1 - uv_fraction) / 2 of the object's box on
+each side (for a detection, area = object box, this is the rule above), and the depth rules
+read the region's box (the object's projected box at the estimate) as a detection's box.
 """
 
 from __future__ import annotations
@@ -142,20 +148,36 @@ class CandidateSampler:
             z = np.where(np.isnan(z), np.median(good) if good.size else np.nan, z)
         return z
 
-    def translations(self, n: int, frame: Frame, rng: np.random.Generator) -> np.ndarray:
-        """n translations t (n,3) from phi_cand (what PoseRBPF's particles are); frame.box must
-        be a valid box."""
-        box = valid_box(frame.box)
-        if box is None:
-            raise ValueError("CandidateSampler needs a frame with a valid box")
-        K = np.asarray(frame.K, dtype=np.float64)
+    def _centres(
+        self, n: int, frame: Frame, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray, Box, Box]:
+        """n candidate centres u, v (n,) pixels, the object's box (the depth rule's) and the
+        area they lie in (the depth holes' fallback): from the detection, else from the search
+        region (module docstring); ValueError when the frame has neither."""
         margin = 0.5 * (1.0 - self.uv_fraction)
-        u = box[0] + (margin + self.uv_fraction * rng.random(n)) * box[2]
-        v = box[1] + (margin + self.uv_fraction * rng.random(n)) * box[3]
+        box = valid_box(frame.box)
+        if box is not None:
+            u = box[0] + (margin + self.uv_fraction * rng.random(n)) * box[2]
+            v = box[1] + (margin + self.uv_fraction * rng.random(n)) * box[3]
+            return u, v, box, box
+        if frame.region is None:
+            raise ValueError("CandidateSampler needs a frame with a valid box or a search region")
+        obj, area = frame.region.box, frame.region.area
+        bx, by = margin * obj[2], margin * obj[3]
+        span_u, span_v = max(area[2] - 2.0 * bx, 0.0), max(area[3] - 2.0 * by, 0.0)
+        u = area[0] + min(bx, 0.5 * area[2]) + span_u * rng.random(n)
+        v = area[1] + min(by, 0.5 * area[3]) + span_v * rng.random(n)
+        return u, v, obj, area
+
+    def translations(self, n: int, frame: Frame, rng: np.random.Generator) -> np.ndarray:
+        """n translations t (n,3) from phi_cand (what PoseRBPF's particles are); the frame
+        needs a valid box or a search region."""
+        u, v, box, area = self._centres(n, frame, rng)
+        K = np.asarray(frame.K, dtype=np.float64)
         lo, hi = self._z_rgb_range(box, K)
         z_rgb = rng.uniform(lo, hi, n)
         if self.use_depth and frame.depth is not None:
-            z_meas = self._z_depth(u, v, box, np.asarray(frame.depth), hi)
+            z_meas = self._z_depth(u, v, area, np.asarray(frame.depth), hi)
             offset = rng.uniform(self.depth_offset[0], self.depth_offset[1], n)
             z = np.where(np.isnan(z_meas), z_rgb, z_meas + offset)
         else:
@@ -169,7 +191,8 @@ class CandidateSampler:
         rng: np.random.Generator,
         estimate_t: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """n poses (R (n,3,3), t (n,3)) from phi_cand; frame.box must be a valid box.
+        """n poses (R (n,3,3), t (n,3)) from phi_cand; the frame needs a valid box or a search
+        region.
         ``estimate_t`` (3,): the belief's translation (``box_for``), None when there is none."""
         box = self.box_for(frame, estimate_t)
         if box != valid_box(frame.box):

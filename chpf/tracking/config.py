@@ -1,6 +1,7 @@
 """Tracking options: nested sections loadable from YAML (configs/track_*.yaml) and ``--set``.
 
-``TrackConfig`` has the core sections (filter, motion, candidates, likelihood, runtime) and one
+``TrackConfig`` has the core sections (filter, motion, candidates, likelihood, runtime, search:
+chpf.tracking.search_region) and one
 section per registered method with options (chpf.tracking.methods), e.g. ``srl: {beta: 0.6}``.
 Unknown keys and out-of-range values raise ConfigError naming the key and the file; a key of
 the former flat form names its new place.
@@ -18,6 +19,7 @@ from typing import Any, Literal
 from chpf.config_schema import Invalid, Section, load, read_yaml, setting
 from chpf.errors import ConfigError
 from chpf.tracking.methods import METHODS
+from chpf.tracking.search_region import SearchConfig
 from chpf.tracking.strategies import C_MODES
 
 __all__ = ["C_MODES", "L_FROM_COS", "MODALITIES", "TrackConfig", "make_config"]
@@ -110,6 +112,7 @@ class TrackCore(Section):
     candidates: CandidatesConfig = field(default_factory=CandidatesConfig)
     likelihood: LikelihoodConfig = field(default_factory=LikelihoodConfig)
     runtime: RuntimeConfig = field(default_factory=RuntimeConfig)
+    search: SearchConfig = field(default_factory=SearchConfig)
 
 
 def _method_sections() -> list[tuple[str, type, Any]]:

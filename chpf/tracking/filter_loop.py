@@ -4,9 +4,10 @@ A filter with a box: the first frame initialises the particles from phi_cand, la
 predict; then weigh, estimate and resample N - round(alpha N) particles from the belief and
 round(alpha N) from the reinvigoration proposal (with ``keep_belief``: N from the belief, so
 that N + round(alpha N) particles are weighed at the next frame and the drawn ones join the
-belief instead of replacing part of it). A frame without a box is predict-only and
-keeps the last estimate. A collapse (all log-weights -inf) sets alpha to 1, warns once per
-filter and keeps the last estimate (the uniform-weight estimate when there is none yet).
+belief instead of replacing part of it). A frame without a box or a search region
+(``Frame.region``, phi_cand's stand-in for a box) is predict-only and keeps the last
+estimate. A collapse (all log-weights -inf) sets alpha to 1, warns once per filter and keeps
+the last estimate (the uniform-weight estimate when there is none yet).
 A subclass supplies the hooks ``_initialise``, ``_predict``, ``_weigh``, ``_estimate``,
 ``_take``, ``_draw`` and ``_assign`` on its own particle representation.
 """
@@ -99,17 +100,17 @@ class FilterLoop:
         """Process one frame; returns the estimate and diagnostics (see TrackResult)."""
         t_start = time.perf_counter()
         stage_ms: dict[str, float] = {}
-        box = valid_box(frame.box)
+        searchable = valid_box(frame.box) is not None or frame.region is not None
         t0 = time.perf_counter()
         if not self.initialised:
-            if box is None:
+            if not searchable:
                 return self._result(None, {"total": ms_since(t_start)})
             self._initialise(frame)
             stage_ms["init"] = ms_since(t0)
         else:
             self._predict()
             stage_ms["predict"] = ms_since(t0)
-            if box is None:
+            if not searchable:
                 stage_ms["total"] = ms_since(t_start)
                 return self._result(None, stage_ms)
 

@@ -44,7 +44,12 @@ if TYPE_CHECKING:
 
 
 class Filter(Protocol):
-    """What every filter offers: one step per frame, reset between sequences."""
+    """What every filter offers: one step per frame, reset between sequences, its current
+    estimate (R (3,3), t (3,) metres; None before the first weighed frame) and its random
+    generator."""
+
+    estimate: tuple[np.ndarray, np.ndarray] | None
+    rng: np.random.Generator
 
     def step(self, frame: Frame) -> TrackResult: ...
 

@@ -2,10 +2,11 @@
 
 Each frame shows the object's outline at the estimate (the convex hull of the projected
 ``chpf.tracking.model_outline`` points, green), its axes (x red, y green, z blue, half the
-diameter long), and a bar of the filter's doubt: alpha (the share reinvigorated) for the methods
-that have one, else the effective sample size over N. A frame without an estimate says so.
-A target ending in a video suffix is written with ``cv2.VideoWriter`` (mp4v) under a temporary
-name and moved into place when the run ends; any other target is a folder of
+diameter long), the search region of a frame without a detection (a thin yellow rectangle,
+chpf.tracking.search_region) and a bar of the filter's doubt: alpha (the share reinvigorated)
+for the methods that have one, else the effective sample size over N. A frame without an
+estimate says so. A target ending in a video suffix is written with ``cv2.VideoWriter`` (mp4v)
+under a temporary name and moved into place when the run ends; any other target is a folder of
 ``SCENE_FRAME.png`` files (``000001_000042.png``), each written atomically. With several
 methods each gets its own: ``NAME_METHOD.mp4`` or ``FOLDER/METHOD/``. With several objects
 every object is drawn on the same frame, each with its own bar labelled with its obj_id and
@@ -30,6 +31,7 @@ from chpf.tracking.types import TrackResult
 
 VIDEO_EXTS = (".mp4", ".avi", ".mov", ".mkv")
 OUTLINE = (40, 220, 40)
+REGION = (240, 220, 40)
 AXES = ((230, 40, 40), (40, 220, 40), (60, 100, 255))
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
@@ -72,8 +74,8 @@ def _panel(img: np.ndarray, x1: int, y1: int) -> None:
 @dataclass
 class DrawnObject:
     """One object on an overlay frame: pose R (3,3), t (3,) metres (None: no estimate), its
-    object-frame ``points`` (M,3), ``axis_length`` metres, the ``label`` before its bar and the
-    ``bar`` (``doubt``'s, or None)."""
+    object-frame ``points`` (M,3), ``axis_length`` metres, the ``label`` before its bar, the
+    ``bar`` (``doubt``'s, or None) and the search ``region`` (x, y, w, h) pixels (None: none)."""
 
     R: np.ndarray | None
     t: np.ndarray | None
@@ -81,6 +83,7 @@ class DrawnObject:
     axis_length: float
     label: str
     bar: tuple[float, str, bool] | None
+    region: tuple[float, float, float, float] | None = None
 
 
 def _draw_pose(img: np.ndarray, K: np.ndarray, obj: DrawnObject, line: int) -> None:
@@ -109,6 +112,9 @@ def draw_objects(
     scale = max(0.35, w / 1400.0)
     line = max(1, round(w / 400))
     for obj in objects:
+        if obj.region is not None:
+            x, y, rw, rh = (round(v) for v in obj.region)
+            cv2.rectangle(img, (x, y), (x + rw - 1, y + rh - 1), REGION, 1)
         if obj.R is not None and obj.t is not None:
             _draw_pose(img, K, obj, line)
     pad = max(4, round(h / 60))
@@ -227,6 +233,7 @@ class OverlayWriter:
                     float(self._of(self.axis_length, obj.obj_id)),
                     label,
                     doubt(r, self.n_particles[method]),
+                    r.region,
                 )
             )
         img = draw_objects(frame.rgb, frame.K, drawn, title)

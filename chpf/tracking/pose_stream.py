@@ -4,13 +4,15 @@ Each line is a JSON object::
 
     {"scene_id": 1, "frame": 42, "time": 1.4, "method": "chpf", "obj_id": 2, "object": "box",
      "ok": true, "R": [[...], [...], [...]], "t": [x, y, z], "alpha": 0.12, "ess": 31.5,
-     "has_box": false, "ms": 28.1}
+     "has_box": false, "region": [96.5, 40.2, 120.0, 150.3], "ms": 28.1}
 
 ``frame``: the frame's id (BOP im_id, image file number or position, video position); ``time``:
 seconds from the source's start; ``R`` (3x3, row-major rows) and ``t`` (metres) are the pose
 object-to-camera (OpenCV camera), null when there is no estimate; ``alpha``, ``ess`` are null
 when not computed; ``ms`` is the method's time for the frame and object; ``has_box``: the
-frame gave this object a detection box. With several objects a frame's lines follow the objects'
+frame gave this object a detection box; ``region``: the search region (x, y, w, h) pixels
+that stood in for it (chpf.tracking.search_region; null on a frame with a detection or with
+``search.box_source: detections``). With several objects a frame's lines follow the objects'
 order (``obj_id`` and ``object`` tell them apart). The file is written from the
 start of the run (replacing an older one) and each line is written whole and flushed, so a
 program reading it as it grows only ever sees complete lines.
@@ -63,6 +65,7 @@ class PoseStream:
                 "alpha": _num(result.alpha),
                 "ess": _num(result.ess),
                 "has_box": obj.has_box,
+                "region": None if result.region is None else [_num(v, 2) for v in result.region],
                 "ms": _num(obj.ms, 3),
             }
             text += json.dumps(line) + "\n"

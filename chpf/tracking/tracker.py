@@ -6,6 +6,10 @@ Example::
     tracker = Tracker.from_bundle("chpf/assets/bundles/box", method="chpf", n_particles=50)
     for rgb, K, box in frames:                    # box = (x, y, w, h) pixels or None
         result = tracker.step(rgb, K=K, box=box)  # result.R (3,3), result.t (3,) metres
+
+A box is needed to start (the first frame's); after it ``box=None`` means "search around the
+estimate" (the ``search`` options, chpf.tracking.search_region; ``box_source: detections``
+makes such frames predict-only instead).
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ from chpf.tracking.candidates import CandidateSampler
 from chpf.tracking.codebook_candidates import CodebookRotations
 from chpf.tracking.config import MODALITIES, TrackConfig, make_config
 from chpf.tracking.methods import Filter, get_method, make_filter
+from chpf.tracking.model_outline import outline_points
+from chpf.tracking.search_region import SearchRegion
 from chpf.tracking.types import Box, Frame, TrackResult
 
 
@@ -150,6 +156,7 @@ class Tracker:
             method, self.likelihood, cfg, self.candidates, np.random.default_rng(self.seed)
         )
         self.boxes = BoxChecker("Tracker.step")  # warns once per tracker
+        self.search = SearchRegion(cfg.search, lambda: outline_points(bundle), self.likelihood)
         self.frame = 0  # frames stepped since the last reset
 
     @classmethod
@@ -197,7 +204,8 @@ class Tracker:
             self.seed = seed
         self.frame = 0
         self.filter.reset()
-        self.filter.rng = np.random.default_rng(self.seed)  # type: ignore[attr-defined]
+        self.search.reset()
+        self.filter.rng = np.random.default_rng(self.seed)
 
     def step(
         self,
@@ -207,9 +215,13 @@ class Tracker:
         box: Box | None = None,
     ) -> TrackResult:
         """One frame: rgb (H,W,3) uint8, depth (H,W) float32 m or None (non-finite or negative
-        values are missing, as 0 is), K (3,3), box (x,y,w,h) pixels or None (predict only; an
-        invalid box too, warned once: see ``chpf.tracking.boxes.BoxChecker``; text is an
-        InputError). Returns a TrackResult (pose R, t metres, alpha, ...)."""
+        values are missing, as 0 is), K (3,3), box (x,y,w,h) pixels or None: before the first
+        box nothing is tracked; after it None means the search region around the estimate
+        (``search.box_source``: auto | estimate; with ``detections`` it means predict only;
+        ``estimate`` also ignores the boxes given; see chpf.tracking.search_region). An
+        invalid box counts as None (warned once: see ``chpf.tracking.boxes.BoxChecker``; text
+        is an InputError). Returns a TrackResult (pose R, t metres, alpha, ..., ``region``:
+        the search region's area used)."""
         K_arr = check_frame(rgb, depth, K)  # type: ignore[arg-type]
         checked = self.boxes.check(box, f"frame {self.frame}")
         if self.modality == "rgb":
@@ -217,4 +229,10 @@ class Tracker:
         elif depth is not None:
             depth = depth_in_metres(depth)
         self.frame += 1
-        return self.filter.step(Frame(rgb=rgb, depth=depth, K=K_arr, box=checked))
+        frame = self.search.frame(
+            Frame(rgb=rgb, depth=depth, K=K_arr, box=checked), self.filter.estimate, self.filter.rng
+        )
+        result = self.filter.step(frame)
+        self.search.update(result, self.config.filter.n_particles)
+        result.region = None if frame.region is None else frame.region.window
+        return result

@@ -12,15 +12,46 @@ Box = tuple[float, float, float, float]
 """A 2D detection box (x, y, w, h) in pixels (x, y = top-left corner)."""
 
 
+@dataclass(frozen=True)
+class Region:
+    """A search region of a frame without a detection (chpf.tracking.search_region).
+
+    box (x, y, w, h) pixels: where the object is looked for, at its projected size: the model's
+    projected bounding box at the current estimate, or, once the region is widened, the
+    best-matching probe box in the window (phi_cand's depth rule and box-centre look-up read
+    it as they read a detection's box). area (x, y, w, h) pixels: where phi_cand's candidates
+    lie: the window, or around the best probe. window (x, y, w, h) pixels: the part of the
+    image searched: the estimate's box enlarged by the margin, times ``scale``, clipped.
+    scale >= 1: the widening (1 = not widened). cue: the box's crop may inform phi_cand's
+    orientations and E2E's single-frame estimate (False in a widened window without probes).
+    """
+
+    box: Box
+    area: Box
+    window: Box
+    scale: float = 1.0
+    cue: bool = True
+
+
 @dataclass
 class Frame:
     """One camera frame: rgb (H,W,3) uint8, depth (H,W) float32 m (0 = missing) or None,
-    K (3,3) OpenCV intrinsics, box (x, y, w, h) pixels of the object's detection or None."""
+    K (3,3) OpenCV intrinsics, box (x, y, w, h) pixels of the object's detection or None,
+    region: where to search when there is no detection (None: predict only)."""
 
     rgb: np.ndarray
     depth: np.ndarray | None
     K: np.ndarray
     box: Box | None = None
+    region: Region | None = None
+
+    def cue_box(self) -> Box | None:
+        """The box whose centre crop informs phi_cand's orientations and MCL + E2E's
+        single-frame estimate: the detection, else the search region's box when it may
+        (``Region.cue``); not checked."""
+        if self.box is not None:
+            return self.box
+        return self.region.box if self.region is not None and self.region.cue else None
 
 
 @dataclass
@@ -96,6 +127,8 @@ class TrackResult:
     sum_L, sum_C: sums of the likelihoods over the particles (nan when not computed).
     ess: effective sample size of the normalised weights (nan if not weighed).
     stage_ms: milliseconds per stage. ok: an estimate exists. weighed: this frame was scored.
+    region: the search region's window (x, y, w, h) pixels searched on a frame without a
+    detection (None: the frame had a detection, or nothing to search from).
     """
 
     R: np.ndarray | None
@@ -107,3 +140,4 @@ class TrackResult:
     stage_ms: dict[str, float]
     ok: bool
     weighed: bool = False
+    region: Box | None = None

@@ -321,7 +321,8 @@ def test_tracker_survives_missing_boxes_and_depth_holes(bundle, rendered_sequenc
         depth[:, :160] = 0.0  # half the image has no depth
         box = None if i in (4, 5) else seq.box(i)
         r = tr.step(seq.rgb[i], depth=depth, K=seq.K, box=box)
-        assert r.ok and np.all(np.isfinite(r.t)) and r.weighed == (box is not None)
+        assert r.ok and np.all(np.isfinite(r.t)) and r.weighed  # no box: the search region
+        assert (r.region is None) == (box is not None)
 
 
 @pytest.mark.parametrize("method", ["chpf", "srl", "augmcl", "annealing", "e2e", "poserbpf++"])
@@ -540,8 +541,9 @@ def test_shipped_bundle_chpf_alpha_rises_after_a_forced_collapse_and_the_estimat
 
 def test_boxes_as_text_are_refused_and_invalid_boxes_warned_once(bundle, rendered_sequence):
     """A box given as a string is a one-line InputError (was: a numpy ValueError); a box with
-    zero or negative size, a NaN or three numbers makes the frame predict-only with one warning
-    per tracker naming the first such frame (was: silently "no box")."""
+    zero or negative size, a NaN or three numbers makes the frame one without a box (searched
+    around the estimate) with one warning per tracker naming the first such frame (was:
+    silently "no box")."""
     from chpf.errors import InputError
     from chpf.tracking.warn import InvalidBoxWarning
 
@@ -554,7 +556,7 @@ def test_boxes_as_text_are_refused_and_invalid_boxes_warned_once(bundle, rendere
     bad = [(1, 2, 0, 4), (1, 2, -3, 4), (np.nan, 1, 2, 3), (1, 2, 3)]
     with pytest.warns(InvalidBoxWarning) as rec:
         for i, box in enumerate(bad, start=1):
-            assert not tr.step(seq.rgb[i], K=seq.K, box=box).weighed
+            assert tr.step(seq.rgb[i], K=seq.K, box=box).region is not None
     assert len(rec) == 1
     assert "frame 1: invalid box (1, 2, 0, 4)" in str(rec[0].message)
     tr.reset()

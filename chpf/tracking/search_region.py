@@ -1,0 +1,263 @@
+"""Detector-free tracking: where phi_cand searches in a frame without a detection box.
+
+Once a filter is initialised (by its first detection box), a frame without a box gets a search
+region from the current estimate (``Region``, ``Frame.region``): its box is the model's
+projected bounding box at the estimated pose (the bounding box of the projected
+``chpf.tracking.model_outline`` points, the box a perfect detector would give), and its area,
+where the candidates lie, is that box with each side times (1 + ``margin``), clipped to the
+image. phi_cand reads the box as it reads a detection's (chpf.tracking.candidates).
+
+The region widens with the filter's doubt. A weighed frame is *doubtful* when
+
+- the method has a Counter-Hypothetical likelihood (CH-PF, CH-RBPF: ``sum_C`` is recorded):
+  its alpha = S_C / (S_C + S_L) is above ``alpha_doubt``;
+- any other method: the mean unnormalised likelihood of its particles, sum_L / N, is below
+  ``l_doubt``.
+
+After ``patience`` doubtful frames in a row the scale grows by ``widen`` at every further
+doubtful frame, until the window (the area times the scale, clipped) covers the whole image;
+every frame that is not doubtful divides it by ``widen`` again, down to 1. Predict-only frames
+change nothing. Without probes (``probes: 0``, the default) phi_cand draws its candidates'
+centres in the whole window and, once widened, its orientations uniformly (no look-up crop:
+the estimate's place is in doubt); with ``probes`` > 0 a widened window is scanned with
+probe boxes: a grid at half the estimate's box (at most ``probes`` boxes; shifted at random
+each frame), each box of a random size from
+1 / ``probe_sizes`` to ``probe_sizes`` times the estimate's box (its depth is in doubt too).
+The likelihood's autoencoder scores the crop at each probe (its best cosine with the whole
+codebook, ``BundleLikelihood.probe_similarities``: one encoder pass of the probes' crops);
+the best probe becomes the region's box, so phi_cand draws around it, at its depth, with
+orientations that match its crop. Once the candidates there score well the doubt falls and
+the region shrinks back onto the estimate.
+
+``box_source`` (the ``search`` section of the tracking config) picks the box of each frame:
+``auto`` the detection when the frame has one, else the search region; ``detections`` the
+detection only (a frame without one is predict-only: no search region); ``estimate`` the
+search region on every frame after the first detection (later detections are ignored).
+"""
+
+from __future__ import annotations
+
+import math
+import typing
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Literal, Protocol
+
+import numpy as np
+
+from chpf.config_schema import Section, setting
+from chpf.tracking.types import Box, Frame, Region, TrackResult
+
+BoxSourceName = Literal["auto", "detections", "estimate"]
+BOX_SOURCES: tuple[str, ...] = typing.get_args(BoxSourceName)
+"""Where a frame's box comes from (module docstring)."""
+
+
+@dataclass
+class SearchConfig(Section):
+    """The search region of frames without a detection (chpf.tracking.search_region):
+    box_source (BOX_SOURCES); margin, the estimate's box side x (1 + margin); widen, the
+    window's scale factor per doubtful frame; patience, doubtful frames in a row before it
+    widens; alpha_doubt, CH-PF's / CH-RBPF's alpha above which a frame is doubtful; l_doubt,
+    the mean L of the particles below which a frame of another method is doubtful; probes,
+    the most boxes scored per frame in a widened window (0: no probes, phi_cand draws in the
+    whole window); probe_sizes, their sizes range from
+    1 / probe_sizes to probe_sizes times the estimate's box (log-uniform)."""
+
+    box_source: BoxSourceName = "auto"
+    margin: float = setting(0.2, ge=0.0)
+    widen: float = setting(1.5, gt=1.0)
+    patience: int = setting(3, ge=1)
+    alpha_doubt: float = setting(0.6, ge=0.0, le=1.0)
+    l_doubt: float = setting(0.55, ge=0.0, le=1.0)
+    probes: int = setting(0, ge=0)
+    probe_sizes: float = setting(2.0, ge=1.0)
+
+
+class Prober(Protocol):
+    """What the probes need from a likelihood (BundleLikelihood has it)."""
+
+    def probe_similarities(self, frame: Frame, boxes: np.ndarray) -> np.ndarray: ...
+
+
+def projected_box(points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> Box | None:
+    """The bounding box (x, y, w, h) pixels of ``points`` (M,3) metres, object frame, under the
+    pose R (3,3), t (3,) metres with intrinsics K (3,3); None when a point is not in front of
+    the camera (z <= 1 mm) or the box is empty."""
+    cam = points @ np.asarray(R, dtype=np.float64).T + np.asarray(t, dtype=np.float64)
+    if cam.shape[0] == 0 or np.min(cam[:, 2]) <= 1e-3:
+        return None
+    u = K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2]
+    v = K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]
+    x0, y0 = float(u.min()), float(v.min())
+    w, h = float(u.max()) - x0, float(v.max()) - y0
+    if not (w > 0 and h > 0 and math.isfinite(w + h)):
+        return None
+    return (x0, y0, w, h)
+
+
+def scaled_box(box: Box, scale: float) -> Box:
+    """``box`` with its width and height times ``scale``, about its centre."""
+    cx, cy = box[0] + 0.5 * box[2], box[1] + 0.5 * box[3]
+    w, h = box[2] * scale, box[3] * scale
+    return (cx - 0.5 * w, cy - 0.5 * h, w, h)
+
+
+def full_scale(box: Box, width: int, height: int) -> float:
+    """The least scale at which ``scaled_box(box, scale)`` covers the width x height image."""
+    cx, cy = box[0] + 0.5 * box[2], box[1] + 0.5 * box[3]
+    sx = 2.0 * max(cx, width - cx) / box[2]
+    sy = 2.0 * max(cy, height - cy) / box[3]
+    return max(sx, sy, 1.0)
+
+
+def clip_box(box: Box, width: int, height: int) -> Box | None:
+    """``box`` clipped to the width x height image; None when nothing of it is inside."""
+    x0, y0 = max(box[0], 0.0), max(box[1], 0.0)
+    x1, y1 = min(box[0] + box[2], float(width)), min(box[1] + box[3], float(height))
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return (x0, y0, x1 - x0, y1 - y0)
+
+
+class SearchRegion:
+    """One tracked object's search region (module docstring).
+
+    config: the ``search`` section; points: (M,3) metres, object frame, the model points whose
+    projection bounds the object (a callable giving them: computed on first use); prober: what
+    scores the probes of a widened window (None: no probes, phi_cand draws in the whole
+    window). State: ``scale`` (>= 1), ``streak`` (doubtful weighed frames in a row).
+    """
+
+    def __init__(
+        self,
+        config: SearchConfig,
+        points: np.ndarray | Callable[[], np.ndarray],
+        prober: Prober | None = None,
+    ) -> None:
+        self.config = config
+        self._points = points
+        self.prober = prober
+        self.reset()
+
+    def reset(self) -> None:
+        """Not widened, no doubt (start of a sequence)."""
+        self.scale = 1.0
+        self.streak = 0
+        self._full = math.inf  # the scale that covered the image at the last region
+        self._box: Box | None = None  # the last region's box
+
+    @property
+    def points(self) -> np.ndarray:
+        if callable(self._points):
+            self._points = np.asarray(self._points(), dtype=np.float64)
+        return self._points
+
+    def region(
+        self, R: np.ndarray, t: np.ndarray, K: np.ndarray, width: int, height: int
+    ) -> Region | None:
+        """The search region around the estimate R (3,3), t (3,) metres in a width x height
+        image with intrinsics K (3,3), without probes: phi_cand's area is the whole window,
+        and a widened one gives no look-up crop (``Region.cue``). Its window is the whole image
+        when the
+        estimate's box lies outside the image, or when the estimate is not in front of the
+        camera (then the box is the last region's; None when there is none)."""
+        whole = (0.0, 0.0, float(width), float(height))
+        box = projected_box(self.points, R, t, K)
+        if box is None:
+            if self._box is None:
+                return None
+            return Region(self._box, whole, whole, math.inf, cue=False)
+        self._box = box
+        base = scaled_box(box, 1.0 + self.config.margin)
+        self._full = full_scale(base, width, height)
+        scale = min(self.scale, self._full)
+        window = clip_box(scaled_box(base, scale), width, height)
+        if window is None:
+            return Region(box, whole, whole, math.inf, cue=False)
+        return Region(box, window, window, scale, cue=scale <= 1.0)
+
+    def probe_boxes(self, region: Region, rng: np.random.Generator) -> np.ndarray:
+        """The probes (M,4) (x, y, w, h) pixels of a widened region: a grid over its window
+        whose step is half the region box's width and height (larger when that gives more than
+        ``probes``), shifted at random by up to one step, each box of the region box's size
+        times a log-uniform factor in [1 / probe_sizes, probe_sizes]."""
+        win, (w, h) = region.window, region.box[2:]
+        step_x, step_y = 0.5 * w, 0.5 * h
+        nx, ny = max(int(win[2] / step_x), 1), max(int(win[3] / step_y), 1)
+        thin = math.sqrt(nx * ny / self.config.probes)
+        if thin > 1.0:
+            nx, ny = max(int(nx / thin), 1), max(int(ny / thin), 1)
+        step_x, step_y = win[2] / nx, win[3] / ny
+        gx, gy = np.meshgrid(np.arange(nx), np.arange(ny))
+        cx = win[0] + (gx.ravel() + rng.random()) * step_x
+        cy = win[1] + (gy.ravel() + rng.random()) * step_y
+        size = np.exp(rng.uniform(-1.0, 1.0, cx.shape[0]) * math.log(self.config.probe_sizes))
+        return np.stack([cx - w * size / 2, cy - h * size / 2, w * size, h * size], axis=1)
+
+    def probe(self, frame: Frame, region: Region, rng: np.random.Generator) -> Region:
+        """``region`` with its box moved to the best probe (the highest
+        ``probe_similarities``) and its area around that box. Two passes: ``probe_boxes``, then
+        ``probes`` / 2 boxes around the best of them (centres within half a grid step, sizes
+        within 25 %)."""
+        assert self.prober is not None
+        boxes = self.probe_boxes(region, rng)
+        sims = np.asarray(self.prober.probe_similarities(frame, boxes))
+        best = boxes[int(np.argmax(sims))]
+        n = max(self.config.probes // 2, 1)
+        cx = best[0] + 0.5 * best[2] + 0.25 * best[2] * rng.uniform(-1.0, 1.0, n)
+        cy = best[1] + 0.5 * best[3] + 0.25 * best[3] * rng.uniform(-1.0, 1.0, n)
+        size = np.exp(rng.uniform(-1.0, 1.0, n) * math.log(1.25))
+        w, h = best[2] * size, best[3] * size
+        fine = np.stack([cx - w / 2, cy - h / 2, w, h], axis=1)
+        fine_sims = np.asarray(self.prober.probe_similarities(frame, fine))
+        if fine_sims.max() > sims.max():
+            best = fine[int(np.argmax(fine_sims))]
+        box = (float(best[0]), float(best[1]), float(best[2]), float(best[3]))
+        height, width = frame.rgb.shape[:2]
+        area = clip_box(scaled_box(box, 1.0 + self.config.margin), width, height)
+        return Region(box, area or region.window, region.window, region.scale)
+
+    def doubtful(self, result: TrackResult, n_particles: int) -> bool | None:
+        """Whether a frame's result shows doubt (module docstring); None for a frame that was
+        not weighed (predict-only)."""
+        if not result.weighed:
+            return None
+        if math.isfinite(result.sum_C):
+            return bool(result.alpha > self.config.alpha_doubt)
+        mean_l = result.sum_L / n_particles if math.isfinite(result.sum_L) else 0.0
+        return bool(mean_l < self.config.l_doubt)
+
+    def update(self, result: TrackResult, n_particles: int) -> None:
+        """Widen or shrink after a frame (module docstring); N = ``n_particles``."""
+        doubt = self.doubtful(result, n_particles)
+        if doubt is None:
+            return
+        if not doubt:
+            self.streak = 0
+            self.scale = max(self.scale / self.config.widen, 1.0)
+            return
+        self.streak += 1
+        if self.streak >= self.config.patience:
+            self.scale = min(self.scale * self.config.widen, max(self._full, 1.0))
+
+    def frame(
+        self,
+        frame: Frame,
+        estimate: tuple[np.ndarray, np.ndarray] | None,
+        rng: np.random.Generator,
+    ) -> Frame:
+        """The frame the filter steps, by ``box_source``: ``frame`` as it is (its box: the
+        checked detection or None), or with the search region around ``estimate`` (the
+        filter's (R, t); None before the first detection: the frame as it is) instead of its
+        box, probed with ``rng`` when widened."""
+        source = self.config.box_source
+        detected = frame.box is not None
+        if estimate is None or source == "detections" or (source == "auto" and detected):
+            return frame
+        height, width = frame.rgb.shape[:2]
+        region = self.region(estimate[0], estimate[1], frame.K, width, height)
+        probing = self.prober is not None and self.config.probes > 0
+        if region is not None and region.scale > 1.0 and probing:
+            region = self.probe(frame, region, rng)
+        return replace(frame, box=None, region=region)

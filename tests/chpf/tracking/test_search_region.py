@@ -1,0 +1,244 @@
+"""Detector-free tracking: the search region around the estimate, its widening and shrinking
+with the filter's doubt, phi_cand inside it, and ``Tracker.step(box=None)`` on the demo."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from chpf.errors import ConfigError
+from chpf.track_cli import main
+from chpf.tracking.candidates import CandidateSampler
+from chpf.tracking.config import make_config
+from chpf.tracking.demo import shipped_bundle
+from chpf.tracking.runlog import read_log
+from chpf.tracking.search_region import SearchConfig, SearchRegion, projected_box
+from chpf.tracking.tracker import Tracker
+from chpf.tracking.types import Frame, Region, TrackResult
+from tests.helpers import DEMO_K, demo_box, demo_frames
+
+K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
+W, H = 320, 240
+CUBE = 0.05 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+
+
+def _result(alpha: float = float("nan"), sum_L: float = 0.0, sum_C: float = float("nan"),
+            weighed: bool = True) -> TrackResult:  # fmt: skip
+    return TrackResult(np.eye(3), np.zeros(3), alpha, sum_L, sum_C, 10.0, {}, True, weighed)
+
+
+DOUBT = _result(alpha=0.9, sum_L=10.0, sum_C=40.0)  # CH-PF: alpha above alpha_doubt
+CALM = _result(alpha=0.05, sum_L=40.0, sum_C=2.0)
+
+
+def test_the_estimate_region_is_the_projected_model_box_enlarged_by_the_margin():
+    search = SearchRegion(SearchConfig(margin=0.2), CUBE)
+    t = np.array([0.1, -0.05, 1.0])
+    region = search.region(np.eye(3), t, K, W, H)
+    # corners at x 0.05..0.15, y -0.1..0, z 0.95..1.05: x / z spans 0.05 / 1.05..0.15 / 0.95
+    x0, x1 = 300 * 0.05 / 1.05 + 159.5, 300 * 0.15 / 0.95 + 159.5
+    y0, y1 = 300 * -0.10 / 0.95 + 119.5, 300 * 0.0 / 0.95 + 119.5
+    np.testing.assert_allclose(region.box, (x0, y0, x1 - x0, y1 - y0))
+    side_w, side_h = 1.2 * (x1 - x0), 1.2 * (y1 - y0)
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    np.testing.assert_allclose(region.area, (cx - side_w / 2, cy - side_h / 2, side_w, side_h))
+    assert region.scale == 1.0 and region.window == region.area
+    # turned 45 degrees about the optical axis: the corners reach 0.05 sqrt(2) from the centre
+    R = cv2.Rodrigues(np.array([0.0, 0.0, np.pi / 4]))[0]
+    turned = search.region(R, t, K, W, H)
+    r = 0.05 * math.sqrt(2)
+    assert turned.box[2] == pytest.approx(300 * ((0.1 + r) / 0.95 - (0.1 - r) / 1.05), rel=1e-9)
+    assert projected_box(CUBE, np.eye(3), np.array([0.0, 0.0, 0.02]), K) is None  # behind
+
+
+def test_doubt_widens_the_region_after_patience_up_to_the_whole_image_then_shrinks_back():
+    cfg = SearchConfig(margin=0.0, widen=2.0, patience=3, alpha_doubt=0.5)
+    search = SearchRegion(cfg, CUBE)
+    R, t = np.eye(3), np.array([0.0, 0.0, 1.0])  # a 32 px box at the image centre
+    base = search.region(R, t, K, W, H).window
+    areas = []
+    for _ in range(9):
+        search.update(DOUBT, 50)
+        areas.append(search.region(R, t, K, W, H).window)
+    widths = [a[2] for a in areas]
+    # two doubtful frames change nothing; from the third on each one doubles the side
+    assert widths[:2] == [pytest.approx(base[2])] * 2
+    assert widths[2:5] == pytest.approx([2 * base[2], 4 * base[2], 8 * base[2]])
+    assert areas[-1] == (0.0, 0.0, float(W), float(H))  # capped at the whole image
+    assert areas[-2] == areas[-1]
+    # calm frames halve it again, one step per frame, down to the estimate's box
+    shrunk = []
+    for _ in range(6):
+        search.update(CALM, 50)
+        shrunk.append(search.region(R, t, K, W, H))
+    cx = base[0] + base[2] / 2  # 159.5: the scale that first covers the image is set by x
+    full = 2 * max(cx, W - cx) / base[2]
+    expected = [max(full / 2**k, 1.0) for k in range(1, 7)]  # 5.1, 2.5, 1.3, 1, 1, 1
+    assert [r.scale for r in shrunk] == pytest.approx(expected)
+    assert [r.window[2] for r in shrunk[2:]] == pytest.approx(
+        [expected[2] * base[2]] + [base[2]] * 3
+    )
+    assert shrunk[-1].scale == 1.0 and shrunk[-1].window == base
+    # without probes phi_cand draws in the whole window, and once widened without a look-up
+    assert all(r.area == r.window for r in shrunk)
+    assert [r.cue for r in shrunk] == [False] * 3 + [True] * 3
+    # a calm frame in the middle of a doubtful run starts the patience again
+    for _ in range(2):
+        search.update(DOUBT, 50)
+    search.update(CALM, 50)
+    search.update(DOUBT, 50)
+    search.update(DOUBT, 50)
+    assert search.scale == 1.0
+
+
+def test_doubt_of_methods_without_c_is_the_mean_likelihood_and_predict_only_frames_count_not():
+    search = SearchRegion(SearchConfig(patience=1, widen=2.0, l_doubt=0.5), CUBE)
+    search.update(_result(alpha=0.0, sum_L=0.6 * 50), 50)  # mean L 0.6: calm
+    assert search.scale == 1.0
+    search.update(_result(alpha=0.0, sum_L=0.3 * 50), 50)  # mean L 0.3: doubtful
+    assert search.scale == 2.0
+    search.update(_result(alpha=1.0, sum_L=0.3 * 50, weighed=False), 50)
+    assert search.scale == 2.0 and search.streak == 1
+    search.reset()
+    assert search.scale == 1.0 and search.streak == 0
+
+
+def test_box_source_picks_the_detection_or_the_region():
+    est = (np.eye(3), np.array([0.0, 0.0, 1.0]))
+    det = (10.0, 20.0, 30.0, 40.0)
+    rgb = np.zeros((H, W, 3), np.uint8)
+
+    def inputs(source, detection, estimate=est):
+        search = SearchRegion(SearchConfig(box_source=source), CUBE)
+        frame = search.frame(Frame(rgb, None, K, detection), estimate, np.random.default_rng(0))
+        return frame.box, frame.region
+
+    assert inputs("auto", det) == (det, None)
+    box, region = inputs("auto", None)
+    assert box is None and isinstance(region, Region)
+    assert inputs("detections", None) == (None, None)
+    box, region = inputs("estimate", det)
+    assert box is None and region is not None  # detections ignored once tracking
+    assert inputs("estimate", det, None) == (det, None)  # the first box starts it
+    with pytest.raises(ConfigError, match="box_source"):
+        make_config(None, ["search.box_source=sometimes"])
+
+
+class PeakProber:
+    """probe_similarities peaking at boxes centred on ``centre`` with side ``side`` pixels."""
+
+    def __init__(self, centre, side):
+        self.centre, self.side, self.calls = np.array(centre), side, 0
+
+    def probe_similarities(self, frame, boxes):
+        self.calls += 1
+        c = boxes[:, :2] + boxes[:, 2:] / 2
+        off = np.linalg.norm(c - self.centre, axis=1) / self.side
+        return 1.0 - off - np.abs(np.log(boxes[:, 2] / self.side))
+
+
+def test_a_widened_window_is_probed_and_its_best_box_becomes_phi_cands():
+    prober = PeakProber((250.0, 60.0), 40.0)  # the object: far from the estimate
+    search = SearchRegion(SearchConfig(patience=1, widen=2.0, probes=64), CUBE, prober)
+    est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # a 32 px box around (130, 135)
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
+    rng = np.random.default_rng(0)
+    narrow = search.frame(frame, est, rng).region
+    assert prober.calls == 0 and narrow.box == search.region(*est, K, W, H).box  # no probes
+    for _ in range(6):
+        search.update(DOUBT, 50)
+    wide = search.frame(frame, est, rng).region
+    assert wide.window == (0.0, 0.0, float(W), float(H)) and prober.calls == 2
+    centre = np.array(wide.box[:2]) + np.array(wide.box[2:]) / 2
+    assert np.linalg.norm(centre - (250.0, 60.0)) < 15.0  # the probes found it
+    assert 0.7 < wide.box[2] / 40.0 < 1.4
+    side = np.array(wide.box[2:]) * 1.2
+    np.testing.assert_allclose(wide.area, (*(centre - side / 2), *side))  # phi_cand's area
+    boxes = search.probe_boxes(wide, np.random.default_rng(1))
+    assert len(boxes) <= 64 and boxes[:, 0].min() < 40 and boxes[:, 0].max() > 250
+
+
+def test_phi_cand_draws_inside_the_region_with_the_depth_of_its_object_box():
+    sampler = CandidateSampler(box_extent=0.1, z_box_factors=(0.8, 1.25), uv_fraction=0.3)
+    obj = (150.0, 110.0, 30.0, 30.0)  # the object's box at the estimate: z_box = 1 m
+    area = (60.0, 40.0, 200.0, 160.0)
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K, None, Region(obj, area, area, 4.0))
+    t = sampler.translations(2000, frame, np.random.default_rng(0))
+    u = K[0, 0] * t[:, 0] / t[:, 2] + K[0, 2]
+    v = K[1, 1] * t[:, 1] / t[:, 2] + K[1, 2]
+    border = 0.35 * 30.0  # a detection's slack around its central 0.3, of the object's box
+    assert u.min() >= 60 + border - 1e-6 and u.max() <= 260 - border + 1e-6
+    assert v.min() >= 40 + border - 1e-6 and v.max() <= 200 - border + 1e-6
+    assert u.max() - u.min() > 150  # spread over the region, not the object's box
+    assert 0.8 - 1e-9 <= t[:, 2].min() and t[:, 2].max() <= 1.25 + 1e-9
+    with pytest.raises(ValueError, match="search region"):
+        sampler.translations(3, Frame(frame.rgb, None, K), np.random.default_rng(0))
+
+
+def _demo_rgb(n: int) -> list[np.ndarray]:
+    return [cv2.cvtColor(cv2.imread(str(f)), cv2.COLOR_BGR2RGB) for f in demo_frames(n)]
+
+
+def _inside(gt, region) -> float:
+    """The share of box ``gt``'s area inside ``region`` (both x, y, w, h)."""
+    x0, y0 = max(gt[0], region[0]), max(gt[1], region[1])
+    x1, y1 = min(gt[0] + gt[2], region[0] + region[2]), min(gt[1] + gt[3], region[1] + region[3])
+    return max(x1 - x0, 0) * max(y1 - y0, 0) / (gt[2] * gt[3])
+
+
+@pytest.mark.parametrize("method", ["chpf", "poserbpf"])
+def test_tracker_step_without_boxes_searches_around_its_estimate_on_the_demo(method):
+    frames = _demo_rgb(6)
+    tracker = Tracker.from_bundle(shipped_bundle(), method=method, n_particles=10)
+    results = [
+        tracker.step(rgb, K=DEMO_K, box=demo_box(1) if i == 0 else None)
+        for i, rgb in enumerate(frames)
+    ]
+    assert results[0].region is None and all(r.weighed for r in results)
+    for i, r in enumerate(results[1:], start=2):
+        # the search region is the estimate's box (+ margin), which stays on the object
+        gt = demo_box(i)
+        assert r.region is not None and _inside(gt, r.region) > 0.8, (i, r.region, gt)
+        assert r.region[2] * r.region[3] < 4 * gt[2] * gt[3], (i, r.region, gt)
+        assert r.ok and 0.4 < r.t[2] < 1.0
+    # with box_source detections the same frames are predict-only, as before
+    tracker = Tracker.from_bundle(
+        shipped_bundle(), method=method, n_particles=10, search={"box_source": "detections"}
+    )
+    old = [
+        tracker.step(rgb, K=DEMO_K, box=demo_box(1) if i == 0 else None)
+        for i, rgb in enumerate(frames)
+    ]
+    assert [r.weighed for r in old] == [True] + [False] * 5
+    assert all(r.region is None for r in old)
+    np.testing.assert_array_equal(old[-1].t, old[0].t)
+
+
+@pytest.mark.parametrize("source", [None, "detections"])
+def test_chpf_track_image_folder_with_init_box_searches_the_other_frames(
+    source, images, camera, tmp_path, capsys
+):
+    out = tmp_path / "out"
+    chosen = [] if source is None else ["--box-source", source]
+    argv = ["--bundle", shipped_bundle(), "--images", images, "--camera", camera]
+    argv += ["--init-box", ",".join(f"{v:g}" for v in demo_box(1)), "--out", out]
+    argv += ["--poses", out / "poses.jsonl", "--n-particles", "10", "--no-progress", "--no-plot"]
+    assert main([str(a) for a in argv + chosen]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    log = read_log(out / "log_chpf.csv")
+    assert [int(r.values["has_box"]) for r in log] == [1, 0, 0, 0]
+    poses = [json.loads(line) for line in (out / "poses.jsonl").read_text().splitlines()]
+    if source is None:  # auto: the frames after the first are searched around the estimate
+        assert "search.box_source auto" in first
+        assert [int(r.values["weighed"]) for r in log] == [1, 1, 1, 1]
+        assert poses[0]["region"] is None and all(len(d["region"]) == 4 for d in poses[1:])
+        for d, i in zip(poses[1:], range(2, 5), strict=True):
+            assert _inside(demo_box(i), d["region"]) > 0.8
+    else:  # today's behaviour: predict only
+        assert "search.box_source detections" in first and "predict-only" in first
+        assert [int(r.values["weighed"]) for r in log] == [1, 0, 0, 0]
+        assert all(d["region"] is None for d in poses)
