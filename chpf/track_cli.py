@@ -78,7 +78,8 @@ from chpf.tracking.search_region import BOX_SOURCES
 from chpf.tracking.tracker import Tracker
 
 SEARCH_NOTES = {
-    "auto": "search.box_source auto: a frame without a box is searched around the estimate",
+    "auto": "search.box_source auto: a frame without a box is searched around the estimate "
+    "until a detector runs (a box after the first), then predict-only",
     "detections": "search.box_source detections: a frame without a box is predict-only",
     "estimate": "search.box_source estimate: after the first box every frame is searched "
     "around the estimate, boxes ignored",
@@ -225,7 +226,8 @@ def build_parser() -> argparse.ArgumentParser:
         choices=BOX_SOURCES,
         default=None,
         help="the box of a frame (search.box_source, default auto): auto = its detection, else "
-        "a search region around the estimate that widens while the filter doubts; "
+        "a search region around the estimate that widens while the filter doubts (predict "
+        "only once a box has come after the first); "
         "detections = its detection only (none: predict only); estimate = the search region "
         "after the first box",
     )

@@ -30,7 +30,10 @@ orientations that match its crop. Once the candidates there score well the doubt
 the region shrinks back onto the estimate.
 
 ``box_source`` (the ``search`` section of the tracking config) picks the box of each frame:
-``auto`` the detection when the frame has one, else the search region; ``detections`` the
+``auto`` the detection when the frame has one, else the search region unless a detector is
+running (a box came after the first one: a frame it misses is predict-only, as the object is
+most likely hidden; searching there cost every method 5-10 points under occlusion on the
+bench); ``detections`` the
 detection only (a frame without one is predict-only: no search region); ``estimate`` the
 search region on every frame after the first detection (later detections are ignored).
 """
@@ -146,6 +149,7 @@ class SearchRegion:
         self.streak = 0
         self._full = math.inf  # the scale that covered the image at the last region
         self._box: Box | None = None  # the last region's box
+        self.detector_running = False  # a box came after the first (``auto``)
 
     @property
     def points(self) -> np.ndarray:
@@ -250,9 +254,12 @@ class SearchRegion:
         """The frame the filter steps, by ``box_source``: ``frame`` as it is (its box: the
         checked detection or None), or with the search region around ``estimate`` (the
         filter's (R, t); None before the first detection: the frame as it is) instead of its
-        box, probed with ``rng`` when widened."""
+        box, probed with ``rng`` when widened. ``auto`` searches only while no detector runs."""
         source = self.config.box_source
         detected = frame.box is not None
+        self.detector_running |= detected and estimate is not None
+        if source == "auto" and self.detector_running:
+            return frame
         if estimate is None or source == "detections" or (source == "auto" and detected):
             return frame
         height, width = frame.rgb.shape[:2]

@@ -8,8 +8,9 @@ Example::
         result = tracker.step(rgb, K=K, box=box)  # result.R (3,3), result.t (3,) metres
 
 A box is needed to start (the first frame's); after it ``box=None`` means "search around the
-estimate" (the ``search`` options, chpf.tracking.search_region; ``box_source: detections``
-makes such frames predict-only instead).
+estimate" (the ``search`` options, chpf.tracking.search_region) as long as no box has come
+after the first; once one has (a detector runs), a frame without one is predict-only, as with
+``box_source: detections``.
 """
 
 from __future__ import annotations
@@ -217,7 +218,8 @@ class Tracker:
         """One frame: rgb (H,W,3) uint8, depth (H,W) float32 m or None (non-finite or negative
         values are missing, as 0 is), K (3,3), box (x,y,w,h) pixels or None: before the first
         box nothing is tracked; after it None means the search region around the estimate
-        (``search.box_source``: auto | estimate; with ``detections`` it means predict only;
+        (``search.box_source``: auto, until a box comes after the first, or estimate; with
+        ``detections``, or auto once a detector runs, it means predict only;
         ``estimate`` also ignores the boxes given; see chpf.tracking.search_region). An
         invalid box counts as None (warned once: see ``chpf.tracking.boxes.BoxChecker``; text
         is an InputError). Returns a TrackResult (pose R, t metres, alpha, ..., ``region``:

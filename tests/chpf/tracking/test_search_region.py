@@ -128,6 +128,22 @@ def test_box_source_picks_the_detection_or_the_region():
         make_config(None, ["search.box_source=sometimes"])
 
 
+def test_auto_searches_only_while_no_detector_runs():
+    """auto: with the first box only, a frame without one is searched; once a box has come
+    after the first (a detector runs), a frame it misses is predict-only (no box, no region)."""
+    rgb = np.zeros((H, W, 3), np.uint8)
+    est, det = (np.eye(3), np.array([0.0, 0.0, 1.0])), (10.0, 20.0, 30.0, 40.0)
+    search = SearchRegion(SearchConfig(box_source="auto"), CUBE)
+    rng = np.random.default_rng(0)
+    assert search.frame(Frame(rgb, None, K, det), None, rng).box == det  # the first box
+    assert search.frame(Frame(rgb, None, K, None), est, rng).region is not None
+    assert search.frame(Frame(rgb, None, K, det), est, rng).box == det  # a detector runs
+    missed = search.frame(Frame(rgb, None, K, None), est, rng)
+    assert missed.box is None and missed.region is None
+    search.reset()
+    assert search.frame(Frame(rgb, None, K, None), est, rng).region is not None
+
+
 class PeakProber:
     """probe_similarities peaking at boxes centred on ``centre`` with side ``side`` pixels."""
 
