@@ -1,0 +1,75 @@
+"""chpf-make-bundle: every stage on a tiny preset, a rerun does nothing, refusals."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from chpf.bundle import Bundle
+from chpf.errors import ConfigError
+from make_bundle.cli import main
+from make_bundle.plan import parse_budget
+
+ARGS = ["--object", "box", "--preset", "tiny", "--budget", "5m", "--no-progress", "--workers", "1"]
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("mb") / "box"
+    assert main([*ARGS, "--out", str(out)]) == 0
+    return out
+
+
+def test_every_stage_writes_a_bundle_and_report(made: Path) -> None:
+    Bundle.load(made)
+    rep = (made / "report.md").read_text()
+    for stage in ("ae_data", "pairs_data", "heldout", "train_ae", "codebook", "train_ch",
+                  "export", "evaluate", "sequence", "track"):  # fmt: skip
+        assert f"| {stage} |" in rep
+    assert "chpf" in rep and "poserbpf" in rep
+    assert (made / "contact_sheet.png").is_file()
+    assert list(made.glob("track_*.png"))
+
+
+def test_rerun_does_nothing(made: Path, capsys: pytest.CaptureFixture) -> None:
+    before = {p: os.stat(p).st_mtime_ns for p in made.rglob("*")}
+    assert main([*ARGS, "--out", str(made)]) == 0
+    assert "nothing to do" in capsys.readouterr().out
+    assert {p: os.stat(p).st_mtime_ns for p in made.rglob("*")} == before
+
+
+def test_other_settings_refused(made: Path) -> None:
+    with pytest.raises(ConfigError, match="other settings"):
+        main([*ARGS, "--out", str(made), "--seed", "3"])
+
+
+def test_mm_mesh_given_as_metres_is_refused(tmp_path: Path, capsys) -> None:
+    mesh = trimesh.creation.box(extents=np.array([120.0, 80.0, 40.0]))  # millimetres
+    path = tmp_path / "part.ply"
+    mesh.export(path)
+    with pytest.raises(SystemExit) as e:
+        import sys
+
+        from make_bundle.cli import cli
+
+        old = sys.argv
+        sys.argv = ["chpf-make-bundle", "--object", str(path), "--out", str(tmp_path / "b")]
+        try:
+            cli()
+        finally:
+            sys.argv = old
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "mm" in err
+    assert not (tmp_path / "b.work").exists()
+
+
+def test_parse_budget() -> None:
+    assert parse_budget("90m") == 5400 and parse_budget("1h30m") == 5400
+    assert parse_budget("45s") == 45 and parse_budget("10m") == 600
+    with pytest.raises(ConfigError):
+        parse_budget("soon")
