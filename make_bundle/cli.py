@@ -46,15 +46,36 @@ def main(argv: list[str] | None = None) -> int:
         raise ConfigError(f"unknown option {bad[0]} (only --trainer.* pass through)")
     checked_object(args.object, unit=args.unit)  # bad meshes: one line, before anything runs
     budget = parse_budget(args.budget)
-    plan = make_plan(budget, args.preset)
     out = args.out
     work = out.parent / f"{out.name}.work"
     from make_bundle import stages as S
+    from make_bundle.plan import Plan
 
-    settings = {
+    base = {
         "object": args.object, "unit": args.unit, "budget_s": budget, "preset": args.preset,
-        "seed": args.seed, "trainer_args": trainer_args, "plan": vars(plan),
+        "seed": args.seed, "trainer_args": trainer_args,
     }  # fmt: skip
+    old = State(work).settings()
+    rates = None
+    if old is not None and old.get("base") != base and not args.overwrite:
+        State(work).check_settings({"base": base}, False)  # refused before measuring
+    if old is not None and old.get("base") == base:  # a rerun: the first run's plan
+        plan = Plan(**old["plan"])
+        measured = old.get("measured")
+    else:
+        if args.preset is None:  # the tiny preset has fixed sizes: no measuring
+            from make_bundle.measure import measure
+
+            rates = measure(checked_object(args.object, unit=args.unit), 64, trainer_args)
+        plan = make_plan(budget, args.preset, rates, args.workers)
+        measured = vars(rates) if rates else None
+    if measured:
+        print(
+            f"measured: {measured['renders_per_s']:.0f} renders/s (one process), "
+            f"{measured['ae_steps_per_s']:.2f} autoencoder steps/s ({measured['precision']})",
+            flush=True,
+        )
+    settings = {"base": base, "plan": vars(plan), "measured": measured}
     print("plan:\n" + format_plan(plan), flush=True)
     with lock_output_path(work, "chpf-make-bundle"):
         state = State(work)

@@ -69,7 +69,14 @@ class Plan:
         ]
 
 
-def make_plan(budget_s: float, preset: str | None = None) -> Plan:
+# a 12-triangle box at 64x64 on this CPU, one process (DESIGN.md: ~2 ms per crop)
+NOMINAL_RENDERS_PER_S = 500.0
+
+
+def make_plan(budget_s: float, preset: str | None = None, rates=None, workers: int = 2) -> Plan:
+    """``rates`` (make_bundle.measure.Rates, or None for the nominal rates) scales the sizes:
+    data by the measured render rate (never above the recipe's), training steps by the
+    measured autoencoder step rate."""
     if preset == "tiny":
         return Plan(
             preset="tiny", budget_s=budget_s, crop_size=32, ae_n=64, ae_pool=48, pairs_n=64,
@@ -83,8 +90,14 @@ def make_plan(budget_s: float, preset: str | None = None) -> Plan:
     if budget_s < 300:
         raise ConfigError("--budget: at least 5m (use --preset tiny for a smoke test)")
     d = budget_s * SPLIT["data"]
-    pairs_n = int(PAIRS_PER_S * d * 0.75)
-    ae_n = min(60_000, int(PAIRS_PER_S * d * 0.15 * 1.5))
+    f_render, ae_rate, ch_rate = 1.0, AE_STEPS_PER_S, CH_STEPS_PER_S
+    if rates is not None:
+        per_s = rates.renders_per_s * min(max(workers, 1), 2) / 2
+        f_render = min(1.0, max(0.1, per_s / NOMINAL_RENDERS_PER_S))
+        ae_rate = rates.ae_steps_per_s
+        ch_rate = CH_STEPS_PER_S * ae_rate / AE_STEPS_PER_S
+    pairs_n = int(PAIRS_PER_S * f_render * d * 0.75)
+    ae_n = min(60_000, int(PAIRS_PER_S * f_render * d * 0.15 * 1.5))
     ae_time = int(budget_s * SPLIT["ae"])
     ch_time = int(budget_s * SPLIT["ch"])
     return Plan(
@@ -93,8 +106,8 @@ def make_plan(budget_s: float, preset: str | None = None) -> Plan:
         pairs_pool=max(2000, min(120_000, pairs_n // 5)), test_n=2000, test_pool=1000,
         codebook_k=20_000 if budget_s >= 3600 else 4096,
         export_k=10_000 if budget_s >= 3600 else 4096,
-        ae_steps=max(100, min(5000, int(AE_STEPS_PER_S * ae_time))), ae_time_s=ae_time,
-        ch_steps=max(100, min(15000, int(CH_STEPS_PER_S * ch_time))), ch_time_s=ch_time,
+        ae_steps=max(100, min(5000, int(ae_rate * ae_time))), ae_time_s=ae_time,
+        ch_steps=max(100, min(15000, int(ch_rate * ch_time))), ch_time_s=ch_time,
         seq_frames=60,
     )  # fmt: skip
 

@@ -48,7 +48,8 @@ def write_report(out: Path, work: Path, argv: list[str], settings: dict, plan_md
         stage_md,
         "",
     ]
-    if settings.get("preset") == "tiny" or settings.get("budget_s", 1e9) < 1800:
+    base = settings.get("base", {})
+    if base.get("preset") == "tiny" or base.get("budget_s", 1e9) < 1800:
         lines += [
             "A short budget: fewer renders, samples and training steps than the shipped",
             "recipe (90 minutes); expect a larger retrieval error and lower AUCs.",

@@ -23,12 +23,18 @@ class State:
         self.work = work
         self.done_dir = work / "done"
 
+    def settings(self) -> dict | None:
+        path = self.work / "state.json"
+        return json.loads(path.read_text()) if path.is_file() else None
+
     def check_settings(self, settings: dict, overwrite: bool) -> None:
+        """Refuse a folder made with other settings (``settings["base"]``: the command's)."""
         path = self.work / "state.json"
         if path.is_file():
-            old = json.loads(path.read_text())
-            if old != settings:
-                keys = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
+            old = json.loads(path.read_text()).get("base", {})
+            new = settings["base"]
+            if old != new:
+                keys = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
                 if not overwrite:
                     raise ConfigError(
                         f"{self.work}: made with other settings ({', '.join(keys)}); "

@@ -73,3 +73,16 @@ def test_parse_budget() -> None:
     assert parse_budget("45s") == 45 and parse_budget("10m") == 600
     with pytest.raises(ConfigError):
         parse_budget("soon")
+
+
+def test_plan_scales_with_the_measured_rates() -> None:
+    from make_bundle.measure import Rates
+    from make_bundle.plan import format_plan, make_plan
+
+    fast = make_plan(600, rates=Rates(500.0, 8.0, "bf16-mixed"))
+    slow = make_plan(600, rates=Rates(100.0, 4.0, "32-true"))
+    assert slow.pairs_n < fast.pairs_n and slow.ae_steps < fast.ae_steps
+    assert slow.ch_steps < fast.ch_steps and slow.ae_time_s == fast.ae_time_s == 150
+    assert "| train_ae |" in format_plan(fast)
+    with pytest.raises(ConfigError, match="at least 5m"):
+        make_plan(60)
