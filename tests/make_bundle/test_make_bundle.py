@@ -86,3 +86,14 @@ def test_plan_scales_with_the_measured_rates() -> None:
     assert "| train_ae |" in format_plan(fast)
     with pytest.raises(ConfigError, match="at least 5m"):
         make_plan(60)
+
+
+def test_an_interrupted_stage_restarts_cleanly(made: Path, capsys) -> None:
+    work = made.parent / "box.work"
+    (work / "done" / "track.json").unlink()  # as if killed during tracking
+    (work / "track" / "stale.txt").write_text("half-written")
+    assert main([*ARGS, "--out", str(made)]) == 0
+    out = capsys.readouterr().out
+    assert "| track | CH-PF + PoseRBPF |" in out and "| export | K = 64 |" in out
+    assert "== track" in out and "== export" not in out
+    assert not (work / "track" / "stale.txt").exists() and (work / "done" / "track.json").is_file()
