@@ -1,0 +1,209 @@
+"""The stages, each calling the existing commands' Python entry points in-process."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from make_bundle.plan import Plan
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass
+class Ctx:
+    obj: str
+    unit: str
+    out: Path
+    work: Path
+    plan: Plan
+    workers: int
+    seed: int
+    trainer_args: list[str]
+    progress: bool
+    cache: Path
+
+    def d(self, name: str) -> Path:
+        return self.work / name
+
+
+def _hms(seconds: int) -> str:
+    s = int(seconds)
+    return f"00:{s // 3600:02d}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def _check(code: int, what: str) -> None:
+    if code not in (0, None):
+        raise RuntimeError(f"{what} failed (exit {code})")
+
+
+def _gen(c: Ctx, kind: str, out: str, n: int, pool: int, seed: int, extra: list[str]) -> None:
+    from data_gen.cli import main
+
+    argv = [
+        kind, "--object", c.obj, "--unit", c.unit, "--out", str(c.d(out)), "--n", str(n),
+        "--seed", str(seed), "--cache-dir", str(c.cache), "--workers", str(c.workers),
+        "--size", str(c.plan.crop_size), "--codebook-size", str(c.plan.codebook_k),
+        "--set", f"obs_pool.num_entries={pool}", *c.plan.extra_gen, *extra,
+    ]  # fmt: skip
+    if not c.progress:
+        argv.append("--no-progress")
+    _check(main(argv), f"chpf-gen-data {kind}")
+
+
+def ae_data(c: Ctx) -> list[str]:
+    _gen(c, "ae", "ae", c.plan.ae_n, c.plan.ae_pool, c.seed, [])
+    return ["ae"]
+
+
+def pairs_data(c: Ctx) -> list[str]:
+    _gen(c, "pairs", "pairs", c.plan.pairs_n, c.plan.pairs_pool, c.seed, [])
+    return ["pairs"]
+
+
+def heldout(c: Ctx) -> list[str]:
+    t = ["--set", "obs_pool.seed=1"]
+    n, p, s = c.plan.test_n, c.plan.test_pool, c.seed + 1
+    nojit = ["--set", "crop_jitter.xy_sigma=0", "--set", "crop_jitter.z_sigma=0"]
+    _gen(c, "ae", "ae_test", n, p, s, [*t, *nojit, "--set", "empty_crops.ae_share=0"])
+    _gen(c, "pairs", "pairs_test", n, p, s, t)
+    return ["ae_test", "pairs_test"]
+
+
+def _train(c: Ctx, kind: str, cfg: str, data: str, run: str, steps: int, secs: int, extra):
+    from training.cli import main
+
+    argv = [
+        kind, "--config", str(ROOT / cfg), "--data.data_dir", str(c.d(data)),
+        "--trainer.default_root_dir", str(c.d(run)), "--trainer.max_steps", str(steps),
+        "--trainer.max_time", _hms(secs), "--seed_everything", str(c.seed), *extra,
+        *c.trainer_args,
+    ]  # fmt: skip
+    _check(main(argv), f"chpf-train {kind}")
+
+
+def ckpt(c: Ctx, run: str) -> Path:
+    return c.d(run) / "checkpoints" / "last.ckpt"
+
+
+def train_ae(c: Ctx) -> list[str]:
+    p = c.plan
+    extra = ["--model.encoder.size", "32"] if p.preset == "tiny" else []
+    _train(c, "ae", p.ae_config, "ae", "run_ae", p.ae_steps, p.ae_time_s, extra)
+    return ["run_ae"]
+
+
+def codebook(c: Ctx) -> list[str]:
+    from training.codebook import main
+
+    argv = ["--data", str(c.d("pairs")), "--k", str(c.plan.codebook_k)]
+    argv += ["--out", str(c.d("codebook.npz")), "--cache-dir", str(c.cache)]
+    _check(main([*argv, "--workers", str(c.workers)]), "training.codebook")
+    return ["codebook.npz"]
+
+
+def train_ch(c: Ctx) -> list[str]:
+    p = c.plan
+    extra = ["--model.init_from_ae", str(ckpt(c, "run_ae"))]
+    if p.preset == "tiny":
+        extra += ["--model.classifier.encoder.size", "32"]
+    else:
+        extra += ["--model.candidate_codebook", str(c.d("codebook.npz"))]
+    _train(c, "ch", p.ch_config, "pairs", "run_ch", p.ch_steps, p.ch_time_s, extra)
+    return ["run_ch"]
+
+
+def export(c: Ctx) -> list[str]:
+    from export.cli import main
+
+    argv = [
+        "--ae", str(ckpt(c, "run_ae")), "--ch", str(ckpt(c, "run_ch")), "--object", c.obj,
+        "--unit", c.unit, "--out", str(c.out), "--codebook-size", str(c.plan.export_k),
+        "--cache-dir", str(c.cache), "--workers", str(c.workers), "--overwrite",
+    ]  # fmt: skip
+    if not c.progress:
+        argv.append("--quiet")
+    _check(main(argv), "chpf-export")
+    return []
+
+
+def evaluate(c: Ctx) -> list[str]:
+    from training.evaluate import main
+
+    base = ["--ae", str(ckpt(c, "run_ae")), "--codebook", str(c.d("codebook.npz"))]
+    base += ["--cache-dir", str(c.cache)]
+    _check(main([*base, "--data", str(c.d("ae_test")), "--json", str(c.d("eval_ae.json"))]), "eval")
+    ch = ["--ch", str(ckpt(c, "run_ch"))]
+    for fam in ("pairs", "pairs_test"):  # training family and held-out family
+        js = str(c.d(f"eval_{fam}.json"))
+        _check(main([*base, *ch, "--pairs", str(c.d(fam)), "--json", js]), "eval")
+    return ["eval_ae.json", "eval_pairs.json", "eval_pairs_test.json"]
+
+
+def sequence(c: Ctx) -> list[str]:
+    from data_gen.cli import main
+
+    argv = ["sequences", "--objects", c.obj, "--unit", c.unit, "--out", str(c.d("seq"))]
+    argv += ["--frames", str(c.plan.seq_frames), "--num-scenes", "1", "--seed", str(c.seed)]
+    if c.plan.preset == "tiny":
+        argv += ["--width", "160", "--height", "120"]
+    if not c.progress:
+        argv.append("--no-progress")
+    _check(main(argv), "chpf-gen-data sequences")
+    return ["seq"]
+
+
+def track(c: Ctx) -> list[str]:
+    from chpf.track_cli import main
+
+    argv = ["--bundle", str(c.out), "--dataset", str(c.d("seq")), "--method", "chpf,poserbpf"]
+    argv += ["--out", str(c.d("track")), "--seed", str(c.seed)]
+    if not c.progress:
+        argv.append("--no-progress")
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = main(argv)
+    (c.work / "track_stdout.txt").write_text(buf.getvalue())
+    print(buf.getvalue(), end="")
+    _check(code, "chpf-track")
+    return ["track", "track_stdout.txt"]
+
+
+STAGES: list[tuple[str, Callable[[Ctx], list[str]]]] = [
+    ("ae_data", ae_data),
+    ("pairs_data", pairs_data),
+    ("heldout", heldout),
+    ("train_ae", train_ae),
+    ("codebook", codebook),
+    ("train_ch", train_ch),
+    ("export", export),
+    ("evaluate", evaluate),
+    ("sequence", sequence),
+    ("track", track),
+]
+
+# outputs a stage removes before it starts again after an interruption
+OUTPUTS = {
+    "ae_data": ["ae"], "pairs_data": ["pairs"], "heldout": ["ae_test", "pairs_test"],
+    "train_ae": ["run_ae"], "codebook": ["codebook.npz"], "train_ch": ["run_ch"],
+    "evaluate": [], "sequence": ["seq"], "track": ["track"], "export": [],
+}  # fmt: skip
+
+
+def clean(c: Ctx, stage: str) -> None:
+    for name in OUTPUTS[stage]:
+        p = c.d(name)
+        if p.is_dir():
+            shutil.rmtree(p)
+        elif p.exists():
+            p.unlink()
+
+
+def load_json(p: Path) -> Any:
+    return json.loads(p.read_text()) if p.is_file() else None

@@ -1,0 +1,55 @@
+"""Per-stage done markers and the settings of a run, written atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from chpf.errors import ConfigError
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True))
+    os.replace(tmp, path)
+
+
+class State:
+    """``WORK/state.json`` (settings) and ``WORK/done/STAGE.json`` (one per finished stage)."""
+
+    def __init__(self, work: Path) -> None:
+        self.work = work
+        self.done_dir = work / "done"
+
+    def settings(self) -> dict | None:
+        path = self.work / "state.json"
+        return json.loads(path.read_text()) if path.is_file() else None
+
+    def check_settings(self, settings: dict, overwrite: bool) -> None:
+        """Refuse a folder made with other settings (``settings["base"]``: the command's)."""
+        path = self.work / "state.json"
+        if path.is_file():
+            old = json.loads(path.read_text()).get("base", {})
+            new = settings["base"]
+            if old != new:
+                keys = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+                if not overwrite:
+                    raise ConfigError(
+                        f"{self.work}: made with other settings ({', '.join(keys)}); "
+                        "give --overwrite to start again"
+                    )
+                import shutil
+
+                shutil.rmtree(self.done_dir, ignore_errors=True)
+        self.work.mkdir(parents=True, exist_ok=True)
+        self.done_dir.mkdir(exist_ok=True)
+        _write_json(path, settings)
+
+    def done(self, stage: str) -> dict | None:
+        p = self.done_dir / f"{stage}.json"
+        return json.loads(p.read_text()) if p.is_file() else None
+
+    def mark(self, stage: str, info: dict) -> None:
+        _write_json(self.done_dir / f"{stage}.json", info)

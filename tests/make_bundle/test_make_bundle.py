@@ -1,0 +1,99 @@
+"""chpf-make-bundle: every stage on a tiny preset, a rerun does nothing, refusals."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from chpf.bundle import Bundle
+from chpf.errors import ConfigError
+from make_bundle.cli import main
+from make_bundle.plan import parse_budget
+
+ARGS = ["--object", "box", "--preset", "tiny", "--budget", "5m", "--no-progress", "--workers", "1"]
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("mb") / "box"
+    assert main([*ARGS, "--out", str(out)]) == 0
+    return out
+
+
+def test_every_stage_writes_a_bundle_and_report(made: Path) -> None:
+    Bundle.load(made)
+    rep = (made / "report.md").read_text()
+    for stage in ("ae_data", "pairs_data", "heldout", "train_ae", "codebook", "train_ch",
+                  "export", "evaluate", "sequence", "track"):  # fmt: skip
+        assert f"| {stage} |" in rep
+    assert "chpf" in rep and "poserbpf" in rep
+    assert (made / "contact_sheet.png").is_file()
+    assert list(made.glob("track_*.png"))
+
+
+def test_rerun_does_nothing(made: Path, capsys: pytest.CaptureFixture) -> None:
+    before = {p: os.stat(p).st_mtime_ns for p in made.rglob("*")}
+    assert main([*ARGS, "--out", str(made)]) == 0
+    assert "nothing to do" in capsys.readouterr().out
+    assert {p: os.stat(p).st_mtime_ns for p in made.rglob("*")} == before
+
+
+def test_other_settings_refused(made: Path) -> None:
+    with pytest.raises(ConfigError, match="other settings"):
+        main([*ARGS, "--out", str(made), "--seed", "3"])
+
+
+def test_mm_mesh_given_as_metres_is_refused(tmp_path: Path, capsys) -> None:
+    mesh = trimesh.creation.box(extents=np.array([120.0, 80.0, 40.0]))  # millimetres
+    path = tmp_path / "part.ply"
+    mesh.export(path)
+    with pytest.raises(SystemExit) as e:
+        import sys
+
+        from make_bundle.cli import cli
+
+        old = sys.argv
+        sys.argv = ["chpf-make-bundle", "--object", str(path), "--out", str(tmp_path / "b")]
+        try:
+            cli()
+        finally:
+            sys.argv = old
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "mm" in err
+    assert not (tmp_path / "b.work").exists()
+
+
+def test_parse_budget() -> None:
+    assert parse_budget("90m") == 5400 and parse_budget("1h30m") == 5400
+    assert parse_budget("45s") == 45 and parse_budget("10m") == 600
+    with pytest.raises(ConfigError):
+        parse_budget("soon")
+
+
+def test_plan_scales_with_the_measured_rates() -> None:
+    from make_bundle.measure import Rates
+    from make_bundle.plan import format_plan, make_plan
+
+    fast = make_plan(600, rates=Rates(500.0, 8.0, "bf16-mixed"))
+    slow = make_plan(600, rates=Rates(100.0, 4.0, "32-true"))
+    assert slow.pairs_n < fast.pairs_n and slow.ae_steps < fast.ae_steps
+    assert slow.ch_steps < fast.ch_steps and slow.ae_time_s == fast.ae_time_s == 150
+    assert "| train_ae |" in format_plan(fast)
+    with pytest.raises(ConfigError, match="at least 5m"):
+        make_plan(60)
+
+
+def test_an_interrupted_stage_restarts_cleanly(made: Path, capsys) -> None:
+    work = made.parent / "box.work"
+    (work / "done" / "track.json").unlink()  # as if killed during tracking
+    (work / "track" / "stale.txt").write_text("half-written")
+    assert main([*ARGS, "--out", str(made)]) == 0
+    out = capsys.readouterr().out
+    assert "| track | CH-PF + PoseRBPF |" in out and "| export | K = 64 |" in out
+    assert "== track" in out and "== export" not in out
+    assert not (work / "track" / "stale.txt").exists() and (work / "done" / "track.json").is_file()
