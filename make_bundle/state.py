@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import json
-import os
+import shutil
 from pathlib import Path
 from typing import Any
 
+from chpf.atomic import atomic_write_text
 from chpf.errors import ConfigError
 
 
 def _write_json(path: Path, obj: Any) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True))
-    os.replace(tmp, path)
+    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True))
 
 
 class State:
@@ -40,8 +39,6 @@ class State:
                         f"{self.work}: made with other settings ({', '.join(keys)}); "
                         "give --overwrite to start again"
                     )
-                import shutil
-
                 shutil.rmtree(self.done_dir, ignore_errors=True)
         self.work.mkdir(parents=True, exist_ok=True)
         self.done_dir.mkdir(exist_ok=True)
