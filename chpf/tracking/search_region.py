@@ -49,6 +49,7 @@ from typing import Literal, Protocol
 import numpy as np
 
 from chpf.config_schema import Section, setting
+from chpf.geometry import project_points
 from chpf.tracking.types import Box, Frame, Region, TrackResult
 
 BoxSourceName = Literal["auto", "detections", "estimate"]
@@ -90,8 +91,8 @@ def projected_box(points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarra
     cam = points @ np.asarray(R, dtype=np.float64).T + np.asarray(t, dtype=np.float64)
     if cam.shape[0] == 0 or np.min(cam[:, 2]) <= 1e-3:
         return None
-    u = K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2]
-    v = K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]
+    uv = project_points(cam, K)
+    u, v = uv[:, 0], uv[:, 1]
     x0, y0 = float(u.min()), float(v.min())
     w, h = float(u.max()) - x0, float(v.max()) - y0
     if not (w > 0 and h > 0 and math.isfinite(w + h)):

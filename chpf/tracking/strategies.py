@@ -9,7 +9,8 @@ attributes let a strategy change the core's loop without a special filter class:
 (annealing layers, one weighing per entry; the default (1.0,) is one ordinary weighing) with
 ``layer_decay`` (diffusion scale factor per layer), and ``propose(frame, n, rng, likelihood)``
 (where reinvigorated particles come from; None means phi_cand). CH-PF also changes how the
-particles weigh (``importance(scores)``: the likelihood's w, times (1 - C)^k for CH-PF) and,
+particles weigh (``importance(scores)``: the likelihood's w; for CH-PF tempered by the last
+alpha and times (1 - C)^k) and,
 with ``keeps_belief``, whether the drawn particles replace part of the belief or join all of it.
 
 A strategy with options takes its config dataclass (defined next to it; the defaults live
