@@ -20,7 +20,11 @@ from chpf.geometry import (
 )
 from chpf.metrics import add, adds
 from chpf.objects import get_object
-from chpf.tracking.bundle_likelihood import BundleLikelihood, likelihood_from_cosine
+from chpf.tracking.bundle_likelihood import (
+    BundleLikelihood,
+    box_counter_evidence,
+    likelihood_from_cosine,
+)
 from chpf.tracking.codebook_candidates import CodebookRotations
 from chpf.tracking.depth_scores import depth_scores
 from chpf.tracking.tracker import Tracker
@@ -85,13 +89,14 @@ def test_c_box_counts_a_hypothesis_smaller_than_the_detection_box_as_misaligned(
 ):
     """The true pose moved along its ray: nearer (projects larger than the box, as an occluded
     object's box would) keeps C; 1.5 x farther projects at 2/3 of the box: C_box = 1, C = 1;
-    1.25 x farther: rho ~1.25, C_box ~0.25 with margin 0.2, combined by noisy-or."""
+    1.25 x farther: rho ~1.25, C_box ~0.25 with the ramp's margin 0.2, combined by noisy-or."""
     seq = rendered_sequence
     frame = Frame(seq.rgb[0], None, seq.K, seq.box(0))
     scales = np.array([0.8, 1.0, 1.25, 1.5])
     R, t = np.repeat(seq.R[:1], 4, 0), seq.t[0][None] * scales[:, None]
     plain = BundleLikelihood(bundle, c_mode="learned").score(frame, R, t).C
-    boxed = BundleLikelihood(bundle, c_mode="learned", c_box=0.2).score(frame, R, t).C
+    boxed = BundleLikelihood(bundle, c_mode="learned", c_box=0.2, c_box_shape="ramp")
+    boxed = boxed.score(frame, R, t).C
     np.testing.assert_allclose(boxed[:2], plain[:2])
     assert boxed[3] == pytest.approx(1.0) and plain[3] < 0.9
     assert plain[2] < boxed[2] < 1.0
@@ -100,6 +105,31 @@ def test_c_box_counts_a_hypothesis_smaller_than_the_detection_box_as_misaligned(
         BundleLikelihood(bundle, c_box=0.2).score(no_box, R, t).C,
         BundleLikelihood(bundle).score(no_box, R, t).C,
     )
+
+
+def test_c_box_does_not_count_the_true_pose(bundle, rendered_sequence):
+    """The projected side comes from the model's outline at the particle's own pose: with each
+    codebook entry's extent instead, the template bundle's coarse grid (512 entries, the
+    nearest 15-19 deg off) made the truth project 12-19 % smaller than its box and C_box 0.5-0.8
+    there."""
+    seq = rendered_sequence
+    plain, boxed = BundleLikelihood(bundle), BundleLikelihood(bundle, c_box=0.1)
+    for i in range(0, 21, 5):
+        frame = Frame(seq.rgb[i], None, seq.K, seq.box(i))
+        R, t = seq.R[i : i + 1], seq.t[i : i + 1]
+        assert boxed.score(frame, R, t).C[0] < plain.score(frame, R, t).C[0] + 0.05
+
+
+def test_box_counter_evidence_gauss_counts_depth_errors_inside_the_ramps_margin():
+    """gauss: 1 - exp(-ln(rho)^2 / (2 s^2)) above rho 1; ramp: nothing below 1 + m. A belief 10 %
+    too far (rho 1.1) is counted by gauss (s 0.1) and not by the ramp (m 0.2); a larger
+    projection (rho < 1: occlusion explains it) by neither."""
+    rho = np.array([0.5, 1.0, 1.1, 1.25])
+    gauss = box_counter_evidence(rho, 0.1, "gauss")
+    expected = 1 - np.exp(-0.5 * (np.log(rho[2:]) / 0.1) ** 2)
+    np.testing.assert_allclose(gauss, [0.0, 0.0, *expected])
+    assert 0.3 < gauss[2] < 0.4 and gauss[3] > 0.9
+    np.testing.assert_allclose(box_counter_evidence(rho, 0.2, "ramp"), [0.0, 0.0, 0.0, 0.25])
 
 
 def test_l_from_cos_maps_the_cosine_to_the_unnormalised_likelihood(bundle, rendered_sequence):
