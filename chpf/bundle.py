@@ -21,7 +21,6 @@ This module never imports torch.
 from __future__ import annotations
 
 import json
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -213,7 +212,6 @@ class Bundle:
         self._ae = ae_session
         self._ch = ch_session
         self._head = head_session
-        self._worker: ThreadPoolExecutor | None = None  # runs the CH encoder in embed_pair
         self.precision = "float32"  # of the encoders (PRECISIONS); set by ``load``
         self.device = "cpu"  # as asked (chpf.providers.DEVICES); set by ``load``
         self.providers: list[str] = ["CPUExecutionProvider"]  # those the sessions use
@@ -372,22 +370,6 @@ class Bundle:
     def ch_embed(self, crops: np.ndarray) -> np.ndarray:
         """Classifier observed-branch embeddings (N,S,S,3) -> (N,E); same as ``embed`` if shared."""
         return self._encode(self._ae if self._ch is None else self._ch, crops)
-
-    def embed_pair(self, crops: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``embed`` and ``ch_embed`` of the same crops (N,S,S,3) -> (N,E), (N,E) float32.
-
-        The classifier's encoder runs on a worker thread while the autoencoder's runs on the
-        caller's (onnxruntime releases the GIL), so the two passes overlap on a multi-core CPU;
-        the outputs are those of the two calls made one after the other. One pass if shared.
-        """
-        if self._ch is None:
-            emb = self.embed(crops)
-            return emb, emb
-        crops = self._check_crops(crops)
-        if self._worker is None:
-            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="chpf-ch-encoder")
-        pending = self._worker.submit(self._encode, self._ch, crops)
-        return self._encode(self._ae, crops), pending.result()
 
     def p_misaligned(self, obs_emb: np.ndarray, codebook_idx: np.ndarray) -> np.ndarray:
         """Classifier probability that each hypothesis is misaligned: (N,E), (N,) int -> (N,).

@@ -5,8 +5,7 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
 1. crop: the scale-normalised crop of each particle (chpf.crops: square centred on the
    projection of t, side S * (D_r / z) * (f / f_r)), resized to S x S;
 2. encode: one autoencoder pass over the N crops (the classifier's observed branch reuses it
-   when the bundle's CH shares the AE encoder, else the CH encoder's pass runs at the same
-   time on a second thread, ``Bundle.embed_pair``; "encode" then times both);
+   when the bundle's CH shares the AE encoder, else one more pass with the CH encoder);
 3. lookup: nearest codebook entry of each particle's allocentric rotation R_ray(t)^T R;
    cosine c with that entry's AE embedding; w = exp(-(1 - c)^2 / (2 sigma^2)) and the
    unnormalised likelihood L in [0, 1] by ``l_from_cos``: "clip" L = max(c, 0) or "affine"
@@ -148,18 +147,13 @@ class BundleLikelihood:
         t_safe[:, 2] = np.maximum(t_safe[:, 2], self.z_min)
         return crop_affines(t_safe, np.asarray(frame.K, dtype=np.float64), spec)
 
-    def _crops(self, frame: Frame, t: np.ndarray, ms: dict[str, float]) -> np.ndarray:
-        """Crops (N,S,S,3) uint8 at t (N,3); time into ``ms``."""
-        t0 = time.perf_counter()
-        crops = extract_crops(frame.rgb, self._affines(frame, t, self.spec), self.spec.size)
-        ms["crop"] = ms_since(t0)
-        return crops
-
     def _crops_and_embed(
         self, frame: Frame, t: np.ndarray, ms: dict[str, float]
     ) -> tuple[np.ndarray, np.ndarray]:
         """Crops (N,S,S,3) at t (N,3) and their AE embeddings (N,E); times into ``ms``."""
-        crops = self._crops(frame, t, ms)
+        t0 = time.perf_counter()
+        crops = extract_crops(frame.rgb, self._affines(frame, t, self.spec), self.spec.size)
+        ms["crop"] = ms_since(t0)
         t0 = time.perf_counter()
         emb = self.bundle.embed(crops)
         ms["encode"] = ms_since(t0)
@@ -187,14 +181,14 @@ class BundleLikelihood:
         """Scores of N hypotheses R (N,3,3), t (N,3) metres (see module docstring)."""
         ms: dict[str, float] = {}
         t = np.asarray(t, dtype=np.float64)
+        crops, emb = self._crops_and_embed(frame, t, ms)
         need_c = self.c_mode in ("learned", "both")
-        if need_c:
-            crops = self._crops(frame, t, ms)
+        if need_c and not self.bundle.shares_encoder:
             t0 = time.perf_counter()
-            emb, ch_emb = self.bundle.embed_pair(crops)  # the two encoders at once
-            ms["encode"] = ms_since(t0)
+            ch_emb = self.bundle.ch_embed(crops)
+            ms["ch_encode"] = ms_since(t0)
         else:
-            emb = self._crops_and_embed(frame, t, ms)[1]
+            ch_emb = emb
 
         t0 = time.perf_counter()
         R_allo = egocentric_to_allocentric(R, t)

@@ -161,18 +161,6 @@ def test_bad_crops_rejected(made):
         b.embed(np.zeros((3, S, S, 3), np.float32))
 
 
-def test_embed_pair_equals_the_two_encoders_one_after_the_other(made):
-    b = Bundle.load(made[0], threads=2)
-    for n in (50, 1, 0):
-        crops = _crops(n, seed=n)
-        ae, ch = b.embed_pair(crops)
-        np.testing.assert_array_equal(ae, b.embed(crops))
-        np.testing.assert_array_equal(ch, b.ch_embed(crops))
-        assert ae.shape == ch.shape == (n, E)
-    with pytest.raises(ImageSizeError, match="uint8"):
-        b.embed_pair(np.zeros((3, S, S, 3), np.float32))
-
-
 def test_shared_encoder_bundle(tmp_path):
     root = tmp_path / "shared"
     make_bundle(root, shared=True)
@@ -181,9 +169,6 @@ def test_shared_encoder_bundle(tmp_path):
     assert b.shares_encoder
     crops = _crops(5)
     np.testing.assert_array_equal(b.ch_embed(crops), b.embed(crops))
-    ae, ch = b.embed_pair(crops)
-    assert ch is ae
-    np.testing.assert_array_equal(ae, b.embed(crops))
 
 
 def test_tampered_file_sha_mismatch(tmp_path):
