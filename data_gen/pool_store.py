@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import json
+import mmap
 import os
 import shutil
 import time
@@ -58,6 +59,16 @@ def load_arrays(path: Path, names: list[str], mmap: bool) -> dict[str, np.ndarra
         return {n: np.load(path / f"{n}.npy", mmap_mode="r" if mmap else None) for n in names}
     except (OSError, ValueError):
         return None
+
+
+def release(arrays: Iterable[np.ndarray]) -> None:
+    """Unmap the pages of read-only memory-mapped arrays that this process has touched, so that
+    its resident size does not grow with the share of a pool it has read (the pages stay in
+    the page cache: a later read costs a minor fault, no disk read)."""
+    for a in arrays:
+        m = a.base if isinstance(a, np.memmap) else None
+        if isinstance(m, mmap.mmap):
+            m.madvise(mmap.MADV_DONTNEED)
 
 
 @contextlib.contextmanager

@@ -45,6 +45,7 @@ def _run_shard(ctx, state: State, settings: dict, shard: int, num_shards: int) -
     settings = state.claim(settings)  # every job of the array follows the first one's plan
     state.check_settings(settings, False)
     ctx.plan = Plan(**settings["plan"])
+    print("plan:\n" + format_plan(ctx.plan), flush=True)
     ctx.shard = (shard, num_shards)
     job = ctx.work.parent / f"{ctx.work.name}.shard-{shard}-of-{num_shards}"
     with lock_output_path(job, "chpf-make-bundle"):
@@ -103,7 +104,6 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
     settings = {"base": base, "plan": vars(plan), "measured": measured}
-    print("plan:\n" + format_plan(plan), flush=True)
     ctx = S.Ctx(
         obj=args.object, unit=args.unit, out=out, work=work, plan=plan,
         workers=args.workers, seed=args.seed, trainer_args=trainer_args,
@@ -111,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     if args.shard is not None:
         return _run_shard(ctx, State(work), settings, args.shard, args.num_shards)
+    print("plan:\n" + format_plan(plan), flush=True)
     with lock_output_path(work, "chpf-make-bundle"):
         state = State(work)
         if state.check_settings(settings, args.overwrite):  # --overwrite: all outputs stale

@@ -95,7 +95,7 @@ def _tiny(budget_s: float) -> Plan:
         est_s={"ae_data": 2, "pairs_data": 2, "heldout": 2, "train_ae": 10, "codebook": 1,
                "train_ch": 5, "export": 2, "evaluate": 1, "sequence": 1, "track": 1},
         ae_config="configs/train_ae_tiny.yaml", ch_config="configs/train_ch_tiny.yaml",
-        extra_gen=["--set", "occluder_pool.num_entries=12"],
+        extra_gen=["--set", "occluder_pool.num_entries=12", "--samples-per-shard", "16"],
     )  # fmt: skip
 
 

@@ -45,6 +45,16 @@ def test_building_a_pool_holds_one_chunk_not_the_pool(tmp_path):
     np.testing.assert_array_equal(arrays["y"], np.arange(n))
     assert (arrays["x"][::chunk, 0, 0] == np.arange(0, n, chunk) % 251).all()
     assert not pool_store.part_dir(tmp_path / "p").exists()
+    rss = _rss_file_kb()
+    assert int(arrays["x"][:, ::4096].sum()) > 0  # a consumer reading every entry...
+    assert _rss_file_kb() - rss > 48 * 1024  # ...maps it in,
+    pool_store.release(arrays.values())
+    assert _rss_file_kb() - rss < 8 * 1024  # and gives the pages back between shards
+
+
+def _rss_file_kb() -> int:
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("RssFile:"))
 
 
 def test_an_interrupted_build_resumes_where_it_stopped(tmp_path, monkeypatch):

@@ -132,3 +132,48 @@ def test_an_interrupted_stage_restarts_cleanly(made: Path, capsys) -> None:
     assert "| track | CH-PF + PoseRBPF |" in out and "| export | K = 64 |" in out
     assert "== track" in out and "== export" not in out
     assert not (work / "track" / "stale.txt").exists() and (work / "done" / "track.json").is_file()
+
+
+def _shard_files(work: Path) -> dict[Path, int]:
+    return {p: p.stat().st_mtime_ns for d in ("ae", "pairs", "ae_test", "pairs_test")
+            for p in sorted((work / d).glob("shard_*.npz"))}  # fmt: skip
+
+
+def test_shard_jobs_then_a_final_run_make_the_bundle(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "box"
+    work = tmp_path / "box.work"
+    assert main([*ARGS, "--out", str(out), "--shard", "0", "--num-shards", "2"]) == 0
+    first = _shard_files(work)
+    names = {p.name for p in first if p.parent.name == "pairs"}
+    assert names == {"shard_00000.npz", "shard_00002.npz"}  # 4 shards of 16: job 0's two
+    assert not (work / "run_ae").exists() and not list((work / "done").glob("*.json"))
+    assert main([*ARGS, "--out", str(out), "--shard", "1", "--num-shards", "2"]) == 0
+    both = _shard_files(work)
+    assert {p.name for p in both if p.parent.name == "pairs"} == {
+        f"shard_{i:05d}.npz" for i in range(4)
+    }
+    assert all(both[p] == t for p, t in first.items())  # job 1 left job 0's shards alone
+    assert "without --shard" in capsys.readouterr().out
+    assert main([*ARGS, "--out", str(out)]) == 0
+    assert _shard_files(work) == both  # the final run made no shard again, it trained
+    Bundle.load(out)
+    assert (out / "report.md").is_file()
+
+
+@pytest.mark.parametrize("shard", [["--shard", "2", "--num-shards", "2"], ["--num-shards", "2"]])
+def test_a_bad_shard_is_one_line_and_exit_2(tmp_path: Path, capsys, shard) -> None:
+    import sys
+
+    from make_bundle.cli import cli
+
+    old = sys.argv
+    sys.argv = ["chpf-make-bundle", *ARGS, "--out", str(tmp_path / "b"), *shard]
+    try:
+        with pytest.raises(SystemExit) as e:
+            cli()
+    finally:
+        sys.argv = old
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--shard" in err
+    assert not (tmp_path / "b.work").exists()
