@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+import yaml
 
 from chpf.bundle import Bundle
 from chpf.errors import ConfigError
@@ -177,3 +178,19 @@ def test_a_bad_shard_is_one_line_and_exit_2(tmp_path: Path, capsys, shard) -> No
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--shard" in err
     assert not (tmp_path / "b.work").exists()
+
+
+def test_trainer_options_reach_both_trainings(tmp_path: Path, capfd) -> None:
+    # as tests/training/test_ddp.py for chpf-train: two CPU processes (gloo) per training
+    ddp = ["--trainer.strategy", "ddp", "--trainer.devices", "2", "--trainer.accelerator", "cpu"]
+    out = tmp_path / "box"
+    assert main([*ARGS, "--out", str(out), *ddp]) == 0
+    logs = capfd.readouterr()
+    for run in ("run_ae", "run_ch"):
+        (cfg,) = (tmp_path / "box.work" / run).rglob("config.yaml")
+        trainer = yaml.safe_load(cfg.read_text())["trainer"]
+        assert (trainer["strategy"], str(trainer["devices"]), trainer["accelerator"]) == (
+            "ddp", "2", "cpu"
+        )  # fmt: skip
+    assert (logs.out + logs.err).count("MEMBER: 2/2") >= 2  # a world of two, each training
+    Bundle.load(out)
