@@ -22,7 +22,8 @@ window is rendered directly with intrinsics ``K_win`` derived from that affine, 
 Cache folder: ``--cache-dir``, else ``$CHPF_CACHE/pools``, else ``~/.cache/chpf/pools``.
 Pools are streamed to disk chunk by chunk (memory-mapped ``.npy`` arrays in a part folder,
 resumable, renamed into place when complete: ``data_gen.pool_store``) and read back as read-only
-memory maps, so neither building nor reading holds a pool in memory.
+memory maps whose pages the generator gives back after each shard, so that neither building
+nor composing holds a pool in memory.
 """
 
 from __future__ import annotations

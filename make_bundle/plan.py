@@ -15,10 +15,13 @@ PAIRS_PER_S = 600_000 / (18 * 60)  # pairs with the pool's rendering
 AE_STEPS_PER_S = 5000 / 600
 CH_STEPS_PER_S = 11758 / 1170
 # seconds each stage costs besides its sized work (process start-ups, loading models and data,
-# the validation codebook, writing), from the stages of a 10-minute run on this 2-core CPU
+# the validation codebook and the last validation after max_time, writing): a 10-minute box run
+# on this 2-core CPU at load 5-6 took train_ae 25 s beyond its max_time, train_ch 9 s, codebook
+# 0.2 s, export 5 s, evaluate 21 s, sequence 3 s, track 4 s (README, "chpf-make-bundle");
+# rounded up for slower meshes
 OVERHEAD_S = {
-    "ae_data": 10, "pairs_data": 10, "heldout": 20, "train_ae": 25, "codebook": 10,
-    "train_ch": 25, "export": 30, "evaluate": 30, "sequence": 20, "track": 20,
+    "ae_data": 10, "pairs_data": 10, "heldout": 15, "train_ae": 30, "codebook": 5,
+    "train_ch": 15, "export": 15, "evaluate": 30, "sequence": 10, "track": 10,
 }  # fmt: skip
 TRAIN_MIN_S = 20  # a training stage never gets less max_time than this
 DEFAULT_BUDGET_S = 5400  # --budget's default, 90 min
