@@ -95,8 +95,8 @@ def _tiny(budget_s: float) -> Plan:
         preset="tiny", budget_s=budget_s, crop_size=32, ae_n=64, ae_pool=48, pairs_n=64,
         pairs_pool=48, test_n=32, test_pool=24, codebook_k=64, export_k=64, ae_steps=4,
         ae_time_s=60, ch_steps=4, ch_time_s=60, seq_frames=4,
-        est_s={"ae_data": 2, "pairs_data": 2, "heldout": 2, "train_ae": 10, "codebook": 1,
-               "train_ch": 5, "export": 2, "evaluate": 1, "sequence": 1, "track": 1},
+        est_s={"ae_data": 2, "pairs_data": 1, "heldout": 1, "train_ae": 12, "codebook": 1,
+               "train_ch": 9, "export": 3, "evaluate": 4, "sequence": 1, "track": 1},
         ae_config="configs/train_ae_tiny.yaml", ch_config="configs/train_ch_tiny.yaml",
         extra_gen=["--set", "occluder_pool.num_entries=12", "--samples-per-shard", "16"],
     )  # fmt: skip
