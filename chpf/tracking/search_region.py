@@ -44,17 +44,20 @@ import math
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Literal, Protocol
+from typing import Literal
 
 import numpy as np
 
 from chpf.config_schema import Section, setting
 from chpf.geometry import project_points
+from chpf.tracking.probe_scores import Probed, ProbeScoreName, probe_scores
 from chpf.tracking.types import Box, Frame, Region, TrackResult
 
 BoxSourceName = Literal["auto", "detections", "estimate"]
 BOX_SOURCES: tuple[str, ...] = typing.get_args(BoxSourceName)
 """Where a frame's box comes from (module docstring)."""
+JITTER = 0.15
+"""Probe refinement: centre offsets and size changes of a jittered box (``jittered``)."""
 
 
 @dataclass
@@ -76,12 +79,7 @@ class SearchConfig(Section):
     l_doubt: float = setting(0.55, ge=0.0, le=1.0)
     probes: int = setting(0, ge=0)
     probe_sizes: float = setting(2.0, ge=1.0)
-
-
-class Prober(Protocol):
-    """What the probes need from a likelihood (BundleLikelihood has it)."""
-
-    def probe_similarities(self, frame: Frame, boxes: np.ndarray) -> np.ndarray: ...
+    probe_score: ProbeScoreName = "classifier"
 
 
 def projected_box(points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> Box | None:
@@ -115,6 +113,29 @@ def full_scale(box: Box, width: int, height: int) -> float:
     return max(sx, sy, 1.0)
 
 
+def jittered(boxes: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` copies of each box (M,4) (x, y, w, h) pixels (box-major), each centre moved by up
+    to ``JITTER`` of its box's width and height, each size times a log-uniform factor within
+    1 +- ``JITTER`` (C's basin around the object is about that wide)."""
+    boxes = np.repeat(np.asarray(boxes, dtype=np.float64).reshape(-1, 4), n, axis=0)
+    m = boxes.shape[0]
+    cx = boxes[:, 0] + 0.5 * boxes[:, 2] + JITTER * boxes[:, 2] * rng.uniform(-1.0, 1.0, m)
+    cy = boxes[:, 1] + 0.5 * boxes[:, 3] + JITTER * boxes[:, 3] * rng.uniform(-1.0, 1.0, m)
+    size = np.exp(rng.uniform(-1.0, 1.0, m) * math.log(1.0 + JITTER))
+    w, h = boxes[:, 2] * size, boxes[:, 3] * size
+    return np.stack([cx - w / 2, cy - h / 2, w, h], axis=1)
+
+
+def inside(boxes: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Boxes (M,4) (x, y, w, h) pixels moved into the width x height image where they fit (a
+    crop reaching past the border is padded, and the classifier takes some padded crops for
+    the object)."""
+    boxes = np.array(boxes, dtype=np.float64)
+    boxes[:, 0] = np.clip(boxes[:, 0], 0.0, np.maximum(width - boxes[:, 2], 0.0))
+    boxes[:, 1] = np.clip(boxes[:, 1], 0.0, np.maximum(height - boxes[:, 3], 0.0))
+    return boxes
+
+
 def clip_box(box: Box, width: int, height: int) -> Box | None:
     """``box`` clipped to the width x height image; None when nothing of it is inside."""
     x0, y0 = max(box[0], 0.0), max(box[1], 0.0)
@@ -137,7 +158,7 @@ class SearchRegion:
         self,
         config: SearchConfig,
         points: np.ndarray | Callable[[], np.ndarray],
-        prober: Prober | None = None,
+        prober: Probed | None = None,
     ) -> None:
         self.config = config
         self._points = points
@@ -151,6 +172,7 @@ class SearchRegion:
         self._full = math.inf  # the scale that covered the image at the last region
         self._box: Box | None = None  # the last region's box
         self.detector_running = False  # a box came after the first (``auto``)
+        self._kept = np.zeros((0, 4))  # the best probes (M,4) of the last probed frame
 
     @property
     def points(self) -> np.ndarray:
@@ -182,15 +204,15 @@ class SearchRegion:
             return Region(box, whole, whole, math.inf, cue=False)
         return Region(box, window, window, scale, cue=scale <= 1.0)
 
-    def probe_boxes(self, region: Region, rng: np.random.Generator) -> np.ndarray:
-        """The probes (M,4) (x, y, w, h) pixels of a widened region: a grid over its window
-        whose step is half the region box's width and height (larger when that gives more than
-        ``probes``), shifted at random by up to one step, each box of the region box's size
-        times a log-uniform factor in [1 / probe_sizes, probe_sizes]."""
+    def probe_boxes(self, region: Region, rng: np.random.Generator, n: int) -> np.ndarray:
+        """At most ``n`` probes (M,4) (x, y, w, h) pixels of a widened region: a grid over its
+        window whose step is half the region box's width and height (larger when that gives
+        more than ``n``), shifted at random by up to one step, each box of the region box's
+        size times a log-uniform factor in [1 / probe_sizes, probe_sizes]."""
         win, (w, h) = region.window, region.box[2:]
         step_x, step_y = 0.5 * w, 0.5 * h
         nx, ny = max(int(win[2] / step_x), 1), max(int(win[3] / step_y), 1)
-        thin = math.sqrt(nx * ny / self.config.probes)
+        thin = math.sqrt(nx * ny / max(n, 1))
         if thin > 1.0:
             nx, ny = max(int(nx / thin), 1), max(int(ny / thin), 1)
         step_x, step_y = win[2] / nx, win[3] / ny
@@ -201,25 +223,26 @@ class SearchRegion:
         return np.stack([cx - w * size / 2, cy - h * size / 2, w * size, h * size], axis=1)
 
     def probe(self, frame: Frame, region: Region, rng: np.random.Generator) -> Region:
-        """``region`` with its box moved to the best probe (the highest
-        ``probe_similarities``) and its area around that box. Two passes: ``probe_boxes``, then
-        ``probes`` / 2 boxes around the best of them (centres within half a grid step, sizes
-        within 25 %)."""
+        """``region`` with its box moved to the best probe (the highest ``probe_scores`` of
+        ``probe_score``) and its area around that box. Per frame at most 1.5 ``probes`` boxes in
+        two passes: the best ``probes`` / 8 boxes of the previous probed frame and a jittered
+        copy of each (the object moves little between frames: the search goes on where it
+        left off) and ``probe_boxes`` for the rest of ``probes``; then ``probes`` / 2 jittered
+        copies of the best (``jittered``). The best ``probes`` / 8 of both passes are kept."""
         assert self.prober is not None
-        boxes = self.probe_boxes(region, rng)
-        sims = np.asarray(self.prober.probe_similarities(frame, boxes))
-        best = boxes[int(np.argmax(sims))]
-        n = max(self.config.probes // 2, 1)
-        cx = best[0] + 0.5 * best[2] + 0.25 * best[2] * rng.uniform(-1.0, 1.0, n)
-        cy = best[1] + 0.5 * best[3] + 0.25 * best[3] * rng.uniform(-1.0, 1.0, n)
-        size = np.exp(rng.uniform(-1.0, 1.0, n) * math.log(1.25))
-        w, h = best[2] * size, best[3] * size
-        fine = np.stack([cx - w / 2, cy - h / 2, w, h], axis=1)
-        fine_sims = np.asarray(self.prober.probe_similarities(frame, fine))
-        if fine_sims.max() > sims.max():
-            best = fine[int(np.argmax(fine_sims))]
-        box = (float(best[0]), float(best[1]), float(best[2]), float(best[3]))
+        kind, n = self.config.probe_score, self.config.probes
         height, width = frame.rgb.shape[:2]
+        kept = np.concatenate([self._kept, jittered(self._kept, 1, rng)])
+        coarse = np.concatenate([kept, self.probe_boxes(region, rng, n - len(kept))])
+        coarse = inside(coarse, width, height)
+        coarse_scores = probe_scores(self.prober, frame, coarse, kind)
+        best = coarse[int(np.argmax(coarse_scores))]
+        fine = inside(jittered(best[None], max(n // 2, 1), rng), width, height)
+        boxes = np.concatenate([coarse, fine])
+        scores = np.concatenate([coarse_scores, probe_scores(self.prober, frame, fine, kind)])
+        order = np.argsort(-scores)
+        self._kept = boxes[order[: max(n // 8, 1)]]
+        box = tuple(float(v) for v in boxes[order[0]])
         area = clip_box(scaled_box(box, 1.0 + self.config.margin), width, height)
         return Region(box, area or region.window, region.window, region.scale)
 
@@ -268,4 +291,6 @@ class SearchRegion:
         probing = self.prober is not None and self.config.probes > 0
         if region is not None and region.scale > 1.0 and probing:
             region = self.probe(frame, region, rng)
+        else:
+            self._kept = np.zeros((0, 4))
         return replace(frame, box=None, region=region)
