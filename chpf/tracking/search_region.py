@@ -20,14 +20,16 @@ every frame that is not doubtful divides it by ``widen`` again, down to 1. Predi
 change nothing. Without probes (``probes: 0``, the default) phi_cand draws its candidates'
 centres in the whole window and, once widened, its orientations uniformly (no look-up crop:
 the estimate's place is in doubt); with ``probes`` > 0 a widened window is scanned with
-probe boxes: a grid at half the estimate's box (at most ``probes`` boxes; shifted at random
-each frame), each box of a random size from
-1 / ``probe_sizes`` to ``probe_sizes`` times the estimate's box (its depth is in doubt too).
-The likelihood's autoencoder scores the crop at each probe (its best cosine with the whole
-codebook, ``BundleLikelihood.probe_similarities``: one encoder pass of the probes' crops);
-the best probe becomes the region's box, so phi_cand draws around it, at its depth, with
-orientations that match its crop. Once the candidates there score well the doubt falls and
-the region shrinks back onto the estimate.
+probe boxes: a grid at half the estimate's box (shifted at random each frame), each box of a
+random size from 1 / ``probe_sizes`` to ``probe_sizes`` times the estimate's box (its depth is
+in doubt too), plus the best probes of the previous widened frame and jittered copies of them,
+then a finer pass of jittered copies of the best (``SearchRegion.probe``); every probe lies
+inside the image. Each is scored by ``probe_score`` (chpf.tracking.probe_scores: the
+autoencoder's best codebook cosine, or 1 - the classifier's C against that entry); the best
+probe becomes the region's box, so phi_cand draws around it, at its depth, with orientations
+that match its crop. Once the candidates there score well the doubt falls and the region
+shrinks back onto the estimate. Both scores peak on the object only within about 0.1 of its
+box side and 15 % of its size, so a probe must land almost on it.
 
 ``box_source`` (the ``search`` section of the tracking config) picks the box of each frame:
 ``auto`` the detection when the frame has one, else the search region unless a detector is
@@ -69,7 +71,8 @@ class SearchConfig(Section):
     the mean L of the particles below which a frame of another method is doubtful; probes,
     the most boxes scored per frame in a widened window (0: no probes, phi_cand draws in the
     whole window); probe_sizes, their sizes range from
-    1 / probe_sizes to probe_sizes times the estimate's box (log-uniform)."""
+    1 / probe_sizes to probe_sizes times the estimate's box (log-uniform); probe_score, how a
+    probe is scored (chpf.tracking.probe_scores.PROBE_SCORES)."""
 
     box_source: BoxSourceName = "auto"
     margin: float = setting(0.2, ge=0.0)
@@ -79,7 +82,7 @@ class SearchConfig(Section):
     l_doubt: float = setting(0.55, ge=0.0, le=1.0)
     probes: int = setting(0, ge=0)
     probe_sizes: float = setting(2.0, ge=1.0)
-    probe_score: ProbeScoreName = "classifier"
+    probe_score: ProbeScoreName = "cosine"
 
 
 def projected_box(points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> Box | None:
