@@ -176,6 +176,7 @@ class SearchRegion:
         self._box: Box | None = None  # the last region's box
         self.detector_running = False  # a box came after the first (``auto``)
         self._kept = np.zeros((0, 4))  # the best probes (M,4) of the last probed frame
+        self._z = 1.0  # metres: the estimate's depth at the last frame not probed
 
     @property
     def points(self) -> np.ndarray:
@@ -207,36 +208,36 @@ class SearchRegion:
             return Region(box, whole, whole, math.inf, cue=False)
         return Region(box, window, window, scale, cue=scale <= 1.0)
 
-    def probe_boxes(self, region: Region, rng: np.random.Generator, n: int) -> np.ndarray:
-        """At most ``n`` probes (M,4) (x, y, w, h) pixels of a widened region: a grid over its
-        window whose step is half the region box's width and height (larger when that gives
-        more than ``n``), shifted at random by up to one step, each box of the region box's
-        size times a log-uniform factor in [1 / probe_sizes, probe_sizes]."""
-        win, (w, h) = region.window, region.box[2:]
-        step_x, step_y = 0.5 * w, 0.5 * h
-        nx, ny = max(int(win[2] / step_x), 1), max(int(win[3] / step_y), 1)
-        thin = math.sqrt(nx * ny / max(n, 1))
-        if thin > 1.0:
-            nx, ny = max(int(nx / thin), 1), max(int(ny / thin), 1)
-        step_x, step_y = win[2] / nx, win[3] / ny
+    def probe_boxes(self, window: Box, side: float, rng: np.random.Generator, n: int) -> np.ndarray:
+        """At most ``n`` square probes (M,4) (x, y, w, h) pixels: a grid over ``window`` whose
+        step spreads ``n`` over its area, shifted at random by up to one step, each of side
+        ``side`` pixels times a log-uniform factor in [1 / probe_sizes, probe_sizes]."""
+        step = max(math.sqrt(window[2] * window[3] / max(n, 1)), 1.0)
+        nx, ny = max(int(window[2] / step), 1), max(int(window[3] / step), 1)
         gx, gy = np.meshgrid(np.arange(nx), np.arange(ny))
-        cx = win[0] + (gx.ravel() + rng.random()) * step_x
-        cy = win[1] + (gy.ravel() + rng.random()) * step_y
-        size = np.exp(rng.uniform(-1.0, 1.0, cx.shape[0]) * math.log(self.config.probe_sizes))
-        return np.stack([cx - w * size / 2, cy - h * size / 2, w * size, h * size], axis=1)
+        cx = window[0] + (gx.ravel() + rng.random()) * window[2] / nx
+        cy = window[1] + (gy.ravel() + rng.random()) * window[3] / ny
+        sizes = side * np.exp(
+            rng.uniform(-1.0, 1.0, cx.shape[0]) * math.log(self.config.probe_sizes)
+        )
+        return np.stack([cx - sizes / 2, cy - sizes / 2, sizes, sizes], axis=1)
 
     def probe(self, frame: Frame, region: Region, rng: np.random.Generator) -> Region:
         """``region`` with its box moved to the best probe (the highest ``probe_scores`` of
         ``probe_score``) and its area around that box. Per frame at most 1.5 ``probes`` boxes in
         two passes: the best ``probes`` / 8 boxes of the previous probed frame and a jittered
         copy of each (the object moves little between frames: the search goes on where it
-        left off) and ``probe_boxes`` for the rest of ``probes``; then ``probes`` / 2 jittered
-        copies of the best (``jittered``). The best ``probes`` / 8 of both passes are kept."""
+        left off) and ``probe_boxes`` for the rest of ``probes``, of the object's side at the
+        depth of the last frame that was not widened (its depth changes little while it is
+        lost, unlike the estimate's); then ``probes`` / 2 jittered copies of the best
+        (``jittered``). The best ``probes`` / 8 of both passes are kept."""
         assert self.prober is not None
         kind, n = self.config.probe_score, self.config.probes
         height, width = frame.rgb.shape[:2]
+        side = float(frame.K[0, 0]) * self.prober.box_extent / self._z
         kept = np.concatenate([self._kept, jittered(self._kept, 1, rng)])
-        coarse = np.concatenate([kept, self.probe_boxes(region, rng, n - len(kept))])
+        grid = self.probe_boxes(region.window, side, rng, n - len(kept))
+        coarse = np.concatenate([kept, grid])
         coarse = inside(coarse, width, height)
         coarse_scores = probe_scores(self.prober, frame, coarse, kind)
         best = coarse[int(np.argmax(coarse_scores))]
@@ -296,4 +297,5 @@ class SearchRegion:
             region = self.probe(frame, region, rng)
         else:
             self._kept = np.zeros((0, 4))
+            self._z = max(float(estimate[1][2]), 1e-3)
         return replace(frame, box=None, region=region)
