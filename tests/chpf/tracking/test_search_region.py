@@ -186,8 +186,11 @@ def test_a_widened_window_is_probed_and_its_best_box_becomes_phi_cands():
     assert 0.7 < wide.box[2] / 40.0 < 1.4
     side = np.array(wide.box[2:]) * 1.2
     np.testing.assert_allclose(wide.area, (*(centre - side / 2), *side))  # phi_cand's area
-    boxes = search.probe_boxes(wide, np.random.default_rng(1), 64)
-    assert len(boxes) <= 64 and boxes[:, 0].min() < 40 and boxes[:, 0].max() > 250
+    boxes = search.probe_boxes(wide.window, 30.0, np.random.default_rng(1), 64)
+    assert 48 <= len(boxes) <= 64 and boxes[:, 0].min() < 40 and boxes[:, 0].max() > 250
+    assert np.all(boxes[:, 2] == boxes[:, 3]) and np.all(
+        np.abs(np.log(boxes[:, 2] / 30)) <= np.log(2)
+    )
 
 
 def test_the_best_probes_carry_over_widened_frames_so_a_narrow_peak_is_found():
