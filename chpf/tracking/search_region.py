@@ -177,6 +177,7 @@ class SearchRegion:
         self.detector_running = False  # a box came after the first (``auto``)
         self._kept = np.zeros((0, 4))  # the best probes (M,4) of the last probed frame
         self._z = 1.0  # metres: the estimate's depth at the last frame not probed
+        self.elsewhere = False  # the last probes found a better place than the estimate's
 
     @property
     def points(self) -> np.ndarray:
@@ -222,7 +223,9 @@ class SearchRegion:
         )
         return np.stack([cx - sizes / 2, cy - sizes / 2, sizes, sizes], axis=1)
 
-    def probe(self, frame: Frame, region: Region, rng: np.random.Generator) -> Region:
+    def probe(
+        self, frame: Frame, region: Region, t: np.ndarray, rng: np.random.Generator
+    ) -> Region:
         """``region`` with its box moved to the best probe (the highest ``probe_scores`` of
         ``probe_score``) and its area around that box. Per frame at most 1.5 ``probes`` boxes in
         two passes: the best ``probes`` / 8 boxes of the previous probed frame and a jittered
@@ -230,16 +233,22 @@ class SearchRegion:
         left off) and ``probe_boxes`` for the rest of ``probes``, of the object's side at the
         depth of the last frame that was not widened (its depth changes little while it is
         lost, unlike the estimate's); then ``probes`` / 2 jittered copies of the best
-        (``jittered``). The best ``probes`` / 8 of both passes are kept."""
+        (``jittered``). The best ``probes`` / 8 of both passes are kept. The estimate's own
+        box (at the estimate t (3,) metres) is scored with the first pass: ``elsewhere`` says
+        whether the best probe beats it more than half a side away from it."""
         assert self.prober is not None
         kind, n = self.config.probe_score, self.config.probes
         height, width = frame.rgb.shape[:2]
-        side = float(frame.K[0, 0]) * self.prober.box_extent / self._z
+        whole = (0.0, 0.0, float(width), float(height))
+        fx, extent = float(frame.K[0, 0]), self.prober.box_extent
+        own = fx * extent / max(float(t[2]), 1e-3)
+        u, v = project_points(np.asarray(t, dtype=np.float64)[None], frame.K)[0]
+        own_box = np.array([[u + 0.5 - own / 2, v + 0.5 - own / 2, own, own]])
         kept = np.concatenate([self._kept, jittered(self._kept, 1, rng)])
-        grid = self.probe_boxes(region.window, side, rng, n - len(kept))
-        coarse = np.concatenate([kept, grid])
-        coarse = inside(coarse, width, height)
-        coarse_scores = probe_scores(self.prober, frame, coarse, kind)
+        grid = self.probe_boxes(whole, fx * extent / self._z, rng, n - len(kept))
+        coarse = inside(np.concatenate([kept, grid]), width, height)
+        both = probe_scores(self.prober, frame, np.concatenate([own_box, coarse]), kind)
+        own_score, coarse_scores = both[0], both[1:]
         best = coarse[int(np.argmax(coarse_scores))]
         fine = inside(jittered(best[None], max(n // 2, 1), rng), width, height)
         boxes = np.concatenate([coarse, fine])
@@ -247,8 +256,10 @@ class SearchRegion:
         order = np.argsort(-scores)
         self._kept = boxes[order[: max(n // 8, 1)]]
         box = tuple(float(v) for v in boxes[order[0]])
+        off = np.hypot(box[0] + box[2] / 2 - u - 0.5, box[1] + box[3] / 2 - v - 0.5)
+        self.elsewhere = bool(scores[order[0]] > own_score and off > 0.5 * own)
         area = clip_box(scaled_box(box, 1.0 + self.config.margin), width, height)
-        return Region(box, area or region.window, region.window, region.scale)
+        return Region(box, area or whole, whole, region.scale)
 
     def doubtful(self, result: TrackResult, n_particles: int) -> bool | None:
         """Whether a frame's result shows doubt (module docstring); None for a frame that was
@@ -265,7 +276,7 @@ class SearchRegion:
         doubt = self.doubtful(result, n_particles)
         if doubt is None:
             return
-        if not doubt:
+        if not doubt and not self.elsewhere:
             self.streak = 0
             self.scale = max(self.scale / self.config.widen, 1.0)
             return
@@ -294,8 +305,9 @@ class SearchRegion:
         region = self.region(estimate[0], estimate[1], frame.K, width, height)
         probing = self.prober is not None and self.config.probes > 0
         if region is not None and region.scale > 1.0 and probing:
-            region = self.probe(frame, region, rng)
+            region = self.probe(frame, region, estimate[1], rng)
         else:
             self._kept = np.zeros((0, 4))
+            self.elsewhere = False
             self._z = max(float(estimate[1][2]), 1e-3)
         return replace(frame, box=None, region=region)
