@@ -81,8 +81,8 @@ class SearchConfig(Section):
     alpha_doubt: float = setting(0.6, ge=0.0, le=1.0)
     l_doubt: float = setting(0.55, ge=0.0, le=1.0)
     probes: int = setting(0, ge=0)
-    probe_sizes: float = setting(2.0, ge=1.0)
-    probe_score: ProbeScoreName = "cosine"
+    probe_sizes: float = setting(1.2, ge=1.0)
+    probe_score: ProbeScoreName = "classifier"
 
 
 def projected_box(points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> Box | None:

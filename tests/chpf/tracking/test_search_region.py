@@ -172,7 +172,7 @@ def _widened(search, frame, est, rng):
 
 def test_a_widened_window_is_probed_and_its_best_box_becomes_phi_cands():
     prober = PeakProber((250.0, 60.0), 40.0)  # the object: far from the estimate
-    cfg = SearchConfig(patience=1, widen=2.0, probes=64, probe_score="cosine")
+    cfg = SearchConfig(patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0)
     search = SearchRegion(cfg, CUBE, prober)
     est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # a 32 px box around (130, 135)
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
@@ -198,7 +198,7 @@ def test_the_best_probes_carry_over_widened_frames_so_a_narrow_peak_is_found():
     # refined from frame to frame they do. A calm frame forgets them.
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))
-    cfg = SearchConfig(patience=1, widen=2.0, probes=64, probe_score="cosine")
+    cfg = SearchConfig(patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0)
     found = []
     for seed in range(5):
         search = SearchRegion(cfg, CUBE, PeakProber((250.0, 60.0), 40.0, width=0.1))
@@ -213,10 +213,30 @@ def test_the_best_probes_carry_over_widened_frames_so_a_narrow_peak_is_found():
     assert search._kept.shape == (0, 4)
 
 
+def test_the_window_stays_widened_while_a_probe_elsewhere_beats_the_estimates_box():
+    # a calm alpha on a wrong place (CH-PF settles on background) does not shrink the window
+    # while the probes find something better elsewhere; on the object it shrinks again
+    cfg = SearchConfig(patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0)
+    search = SearchRegion(cfg, CUBE, PeakProber((250.0, 60.0), 40.0))
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
+    rng = np.random.default_rng(0)
+    _widened(search, frame, (np.eye(3), np.array([-0.1, 0.05, 1.0])), rng)
+    assert search.elsewhere
+    search.update(DOUBT, 50)  # the scale, clamped to the whole image
+    scale = search.scale
+    search.update(CALM, 50)
+    assert search.scale == scale and search.streak > 0
+    on_it = np.array([90.0 * 0.75 / 300.0, -60.0 * 0.75 / 300.0, 0.75])  # its 40 px box at 250, 60
+    search.frame(frame, (np.eye(3), on_it), rng)
+    assert not search.elsewhere
+    search.update(CALM, 50)
+    assert search.scale == scale / 2.0 and search.streak == 0
+
+
 def test_probes_lie_inside_the_image():
     # a crop past the border is padded: the classifier took a padded one for the object
     prober = PeakProber((300.0, 10.0), 80.0)  # a peak at the corner: boxes would reach out
-    cfg = SearchConfig(patience=1, widen=2.0, probes=64, probe_score="cosine")
+    cfg = SearchConfig(patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0)
     search = SearchRegion(cfg, CUBE, prober)
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     box = _widened(
