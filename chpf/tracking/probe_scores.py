@@ -5,11 +5,14 @@ the codebook's median object extent spans the box (``Probed.box_extent``). Its c
 likelihood's scale-normalised crop at that translation) is compared with the whole codebook
 (one autoencoder pass) and scored by ``PROBE_SCORES``:
 
-- ``cosine``: its best cosine with the codebook. Not discriminative: a background patch or a
-  distractor matches some entry nearly as well as the object's own crop.
 - ``classifier``: 1 - C, C the counter-hypothetical classifier's p(misaligned) of the crop
   against its best-cosine entry (one more encoder pass when the bundle's classifier has its
-  own encoder): a detector-like score, near 1 only where the object is.
+  own encoder);
+- ``cosine``: that best cosine.
+
+Both peak on the object only within about 0.1 of its side and 15 % of its size; a background
+patch or a distractor can score about as well as the object's own box (docs/own-recording.md:
+the classifier re-acquired a little more often after a forced jump).
 
 chpf.tracking.search_region moves phi_cand's box to the best probe.
 """

@@ -19,17 +19,20 @@ doubtful frame, until the window (the area times the scale, clipped) covers the 
 every frame that is not doubtful divides it by ``widen`` again, down to 1. Predict-only frames
 change nothing. Without probes (``probes: 0``, the default) phi_cand draws its candidates'
 centres in the whole window and, once widened, its orientations uniformly (no look-up crop:
-the estimate's place is in doubt); with ``probes`` > 0 a widened window is scanned with
-probe boxes: a grid at half the estimate's box (shifted at random each frame), each box of a
-random size from 1 / ``probe_sizes`` to ``probe_sizes`` times the estimate's box (its depth is
-in doubt too), plus the best probes of the previous widened frame and jittered copies of them,
-then a finer pass of jittered copies of the best (``SearchRegion.probe``); every probe lies
-inside the image. Each is scored by ``probe_score`` (chpf.tracking.probe_scores: the
-autoencoder's best codebook cosine, or 1 - the classifier's C against that entry); the best
-probe becomes the region's box, so phi_cand draws around it, at its depth, with orientations
-that match its crop. Once the candidates there score well the doubt falls and the region
-shrinks back onto the estimate. Both scores peak on the object only within about 0.1 of its
-box side and 15 % of its size, so a probe must land almost on it.
+the estimate's place is in doubt); with ``probes`` > 0 a widened frame is scanned over the
+whole image with square probe boxes (``SearchRegion.probe``): a grid (shifted at random each
+frame) whose sides lie within ``probe_sizes`` of the object's side at the depth of the last
+frame that was not widened, plus the best probes of the previous widened frame and jittered
+copies of them, then a finer pass of jittered copies of the best; every probe lies inside the
+image. Each is scored by ``probe_score`` (chpf.tracking.probe_scores: 1 - the classifier's C
+against the crop's best-cosine entry, or that cosine); the best probe becomes the region's
+box, so phi_cand draws around it, at its depth, with orientations
+that match its crop. A probe more than half a side from the estimate that scores better than
+the estimate's own box (scored with the probes) counts the frame as doubtful whatever its
+alpha (``elsewhere``): the filter can settle on a wrong place with a low alpha. Once the
+candidates at the object score well the doubt falls and the region shrinks back onto the
+estimate. Both scores peak on the object only within about 0.1 of its box side and 15 % of
+its size, so a probe must land almost on it.
 
 ``box_source`` (the ``search`` section of the tracking config) picks the box of each frame:
 ``auto`` the detection when the frame has one, else the search region unless a detector is
@@ -69,9 +72,9 @@ class SearchConfig(Section):
     window's scale factor per doubtful frame; patience, doubtful frames in a row before it
     widens; alpha_doubt, CH-PF's / CH-RBPF's alpha above which a frame is doubtful; l_doubt,
     the mean L of the particles below which a frame of another method is doubtful; probes,
-    the most boxes scored per frame in a widened window (0: no probes, phi_cand draws in the
-    whole window); probe_sizes, their sizes range from
-    1 / probe_sizes to probe_sizes times the estimate's box (log-uniform); probe_score, how a
+    the most grid boxes scored per widened frame over the whole image (0: no probes, phi_cand
+    draws in the whole window); probe_sizes, their sides range from 1 / probe_sizes to
+    probe_sizes times the object's side at the last calm depth (log-uniform); probe_score, how a
     probe is scored (chpf.tracking.probe_scores.PROBE_SCORES)."""
 
     box_source: BoxSourceName = "auto"
@@ -272,7 +275,8 @@ class SearchRegion:
         return bool(mean_l < self.config.l_doubt)
 
     def update(self, result: TrackResult, n_particles: int) -> None:
-        """Widen or shrink after a frame (module docstring); N = ``n_particles``."""
+        """Widen or shrink after a frame (module docstring; a frame whose probes found a better
+        place elsewhere counts as doubtful); N = ``n_particles``."""
         doubt = self.doubtful(result, n_particles)
         if doubt is None:
             return
