@@ -8,7 +8,8 @@ truth follows. The scenes are generated into ``--cache-dir``/forced_loss (their 
 jump is not part of a suite's hash). Every method tracks them with the tracking YAML
 ``--config`` (default: ``search.box_source: estimate``, i.e. the first frame's box only) and
 the seeds; the table printed gives per sequence and seed the frames from the jump to the first
-frame with ADD-S < 0.1 diameter ("-": not within the sequence). ``--figure PNG`` draws the
+frame with ADD-S < 0.1 diameter ("-": not within the sequence), then per method the runs
+re-acquired within 30 frames. ``--figure PNG`` draws the
 search window's width, alpha and the ADD-S error over the frames of the first job that finds
 the object again (else the first job), tracked again with a Tracker (the bench's summaries
 hold no region).
@@ -31,6 +32,7 @@ from bench.sequences import build_sequences, default_cache_dir, resolve_bundles
 from bench.suite import load_suite
 
 TRACKED = 0.1  # ADD-S below this share of the diameter: tracked
+WITHIN = 30  # frames from the jump: issue 23's re-acquisition target
 
 
 @contextlib.contextmanager
@@ -146,12 +148,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     run_jobs(args.out, jobs, suite.tracking.n_particles, config, args.workers, progress=False)
     print(f"frames from the jump to ADD-S < {TRACKED} diameter ('-': never)")
     found = []
+    within: dict[str, list[bool]] = {}
     for job in jobs:
         summary = json.loads((args.out / "jobs" / job.id / "summary.json").read_text())
         n = reacquisition(summary, args.jump)
         print(f"{job.id}: {'-' if n is None else n}")
+        within.setdefault(job.method, []).append(n is not None and n <= WITHIN)
         if n is not None:
             found.append(job)
+    for method, hits in within.items():
+        print(f"{method}: re-acquired within {WITHIN} frames in {sum(hits)} of {len(hits)} runs")
     if args.figure is not None:
         shown = (found or jobs)[0]
         draw_figure(shown.seq, config, shown.seed, args.jump, args.figure)

@@ -141,6 +141,15 @@ def _positive(name: str, value: int | None, minimum: int = 1) -> None:
         raise ConfigError(f"{name} must be >= {minimum}, got {value}")
 
 
+def check_shard_args(shard: int | None, num_shards: int) -> None:
+    """ConfigError unless ``--shard I --num-shards M`` name one job of M (or neither is given)."""
+    _positive("--num-shards", num_shards)
+    if shard is not None and not 0 <= shard < num_shards:
+        raise ConfigError(f"--shard must be in 0..{num_shards - 1}, got {shard}")
+    if shard is None and num_shards > 1:
+        raise ConfigError("--num-shards needs --shard I")
+
+
 def _cmd_samples(args: argparse.Namespace) -> int:
     from chpf.crops import CropSpec
     from data_gen.compose import ComposerContext
@@ -149,11 +158,7 @@ def _cmd_samples(args: argparse.Namespace) -> int:
 
     _positive("--n", args.n)
     _positive("--workers", args.workers)
-    _positive("--num-shards", args.num_shards)
-    if args.shard is not None and not 0 <= args.shard < args.num_shards:
-        raise ConfigError(f"--shard must be in 0..{args.num_shards - 1}, got {args.shard}")
-    if args.shard is None and args.num_shards > 1:
-        raise ConfigError("--num-shards needs --shard I")
+    check_shard_args(args.shard, args.num_shards)
     cfg = _config(
         args,
         {
@@ -278,8 +283,11 @@ def main(argv: list[str] | None = None) -> int:
         "bench": _cmd_bench,
         "contact-sheet": _cmd_contact_sheet,
     }[args.cmd]
-    if args.cmd in ("pairs", "ae", "sequences"):  # one writer per output folder at a time
-        with lock_output_path(args.out, f"chpf-gen-data {args.cmd}"):
+    if args.cmd in ("pairs", "ae", "sequences"):  # one writer per output (per shard job) at a time
+        out = args.out
+        if getattr(args, "shard", None) is not None:  # the jobs of an array run side by side
+            out = out.parent / f"{out.name}.shard-{args.shard}-of-{args.num_shards}"
+        with lock_output_path(out, f"chpf-gen-data {args.cmd}"):
             return cmd(args)
     return cmd(args)
 

@@ -48,6 +48,7 @@ from data_gen.pool import (
     occluder_objects,
     occluder_pool,
 )
+from data_gen.pool_store import release
 from data_gen.rotations import draw_candidates, symmetry_set
 
 
@@ -360,6 +361,13 @@ class Composer:
                 t_est=obs["t_est"],
             )
         return out
+
+    def release_pages(self) -> None:
+        """Unmap the pool pages read so far (``pool_store.release``); call between shards."""
+        arrays = [getattr(self.obs, f) for f in ObsPool.FIELDS] + [self.occ.rgb, self.occ.mask]
+        if self.cb is not None:
+            arrays += [self.cb.rgb, self.cb.depth, self.cb.mask]
+        release(arrays)
 
     def generate(self, rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
         """n samples of the context's kind (spec fields only)."""

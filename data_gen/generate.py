@@ -38,6 +38,7 @@ def make_shard(composer: Composer, seed: int, i: int, n: int, progress=None) -> 
         parts.append(composer.generate(rng, k))
         if progress is not None:
             progress(k)
+    composer.release_pages()  # resident size stays at one shard's share of the pools
     return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
 
 

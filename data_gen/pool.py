@@ -20,7 +20,10 @@ window is rendered directly with intrinsics ``K_win`` derived from that affine, 
 ``win_affine^-1 o crop_affine`` (see ``crop_to_window_affines``).
 
 Cache folder: ``--cache-dir``, else ``$CHPF_CACHE/pools``, else ``~/.cache/chpf/pools``.
-Every pool is written to a temporary folder and renamed into place (atomic).
+Pools are streamed to disk chunk by chunk (memory-mapped ``.npy`` arrays in a part folder,
+resumable, renamed into place when complete: ``data_gen.pool_store``) and read back as read-only
+memory maps whose pages the generator gives back after each shard, so that neither building
+nor composing holds a pool in memory.
 """
 
 from __future__ import annotations
@@ -30,9 +33,7 @@ import json
 import math
 import multiprocessing as mp
 import os
-import shutil
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +44,7 @@ from tqdm import tqdm
 
 from chpf.crops import CropBatch, CropSpec, crop_affines
 from chpf.geometry import RotationGrid, egocentric_to_allocentric, random_rotations
+from data_gen.pool_store import PoolBuild, load_arrays, load_or_build
 
 POOL_VERSION = 1
 CHUNK = 64  # renders per progress step / per worker task
@@ -67,55 +69,12 @@ def _pool_path(cache_dir: str | Path | None, kind: str, name: str, parts: dict) 
     return root / f"{kind}-{_safe(name)}-{_key({'kind': kind, 'v': POOL_VERSION, **parts})}"
 
 
-def _load_arrays(path: Path, names: list[str], mmap: bool) -> dict[str, np.ndarray] | None:
-    if not (path / "meta.json").is_file():
-        return None
-    try:
-        return {n: np.load(path / f"{n}.npy", mmap_mode="r" if mmap else None) for n in names}
-    except (OSError, ValueError):
-        return None
-
-
 def _require_arrays(path: str | Path, names: list[str], mmap: bool, what: str) -> dict:
     """The arrays ``names`` of an existing pool folder; FileNotFoundError naming ``what``."""
-    arrays = _load_arrays(Path(path), names, mmap)
+    arrays = load_arrays(Path(path), names, mmap)
     if arrays is None:
         raise FileNotFoundError(f"{path}: no {what}")
     return arrays
-
-
-def _save_pool(path: Path, arrays: dict[str, np.ndarray], meta: dict) -> None:
-    """Write arrays + meta.json into a temp folder next to ``path`` and rename it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".tmp-{path.name}-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    for n, a in arrays.items():
-        np.save(tmp / f"{n}.npy", np.ascontiguousarray(a))
-    (tmp / "meta.json").write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
-    try:
-        os.rename(tmp, path)
-    except OSError:  # built concurrently by another process: keep theirs
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
-def _load_or_build(
-    path: Path,
-    names: list[str],
-    mmap: bool,
-    build: Callable[[], tuple[dict[str, np.ndarray], dict]],
-) -> dict[str, np.ndarray]:
-    """The arrays ``names`` of the pool folder ``path``. If it is missing, ``build() -> (arrays,
-    meta)`` runs first; its time goes into ``meta["build_seconds"]`` and both are saved (atomic).
-    ``mmap``: read-only memory maps (the built arrays themselves if they cannot be re-read)."""
-    arrays = _load_arrays(path, names, mmap)
-    if arrays is not None:
-        return arrays
-    t0 = time.perf_counter()
-    arrays, meta = build()
-    meta["build_seconds"] = round(time.perf_counter() - t0, 2)
-    _save_pool(path, arrays, meta)
-    return _load_arrays(path, names, mmap) or arrays
 
 
 def _chunks(n: int, size: int = CHUNK) -> list[tuple[int, int]]:
@@ -162,17 +121,25 @@ def _task_runner(runner: TaskRunner | None, workers: int) -> Iterator[TaskRunner
         yield own
 
 
-def _run_chunks(fn, tasks: list, runner: TaskRunner, desc: str, progress: bool, total: int) -> list:
-    """Run ``fn(task) -> (n_done, result)`` over tasks (results in order) with a progress bar."""
-    bar = tqdm(total=total, desc=desc, unit="render", disable=not progress or None, leave=False)
-    out = []
+def _iter_chunks(
+    fn, tasks: list, runner: TaskRunner, desc: str, progress: bool, total: int, initial: int = 0
+) -> Iterator:
+    """Yield ``fn(task) -> (n_done, result)``'s results in task order, with a progress bar of
+    ``total`` renders that starts at ``initial`` (a resumed build)."""
+    bar = tqdm(
+        total=total, initial=initial, desc=desc, unit="render", disable=not progress or None,
+        leave=False,
+    )  # fmt: skip
     try:
         for n, r in runner.imap(fn, tasks):
-            out.append(r)
             bar.update(n)
+            yield r
     finally:
         bar.close()
-    return out
+
+
+def _remaining(ranges: list[tuple[int, int]]) -> int:
+    return sum(b - a for a, b in ranges)
 
 
 # Per-process renderer cache for pool building (one GL context per size).
@@ -198,26 +165,15 @@ def _same_object(obj) -> Any:
     return _OBJECTS.setdefault(object_fingerprint(obj), obj)
 
 
-def _crops_task(task: tuple) -> tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def _crops_task(task: tuple) -> tuple[int, dict[str, np.ndarray]]:
+    """Render (obj, R (n,3,3), spec) in the codebook convention: rgb, depth (f32 m), mask."""
     from chpf.crops import render_crops
 
     obj, R, spec = task
     obj = _same_object(obj)
     cb = render_crops(_renderer(spec.size, spec.size), obj, R, spec)
-    return len(R), (np.asarray(cb.rgb), np.asarray(cb.depth, np.float32), np.asarray(cb.mask))
-
-
-def render_crops_parallel(
-    obj, R: np.ndarray, spec: CropSpec, runner: TaskRunner, progress: bool = True, desc: str = ""
-) -> CropBatch:
-    """``render_crops`` for many orientations R (N,3,3), in chunks, through ``runner``."""
-    tasks = [(obj, R[a:b], spec) for a, b in _chunks(len(R))]
-    parts = _run_chunks(_crops_task, tasks, runner, desc, progress, len(R))
-    return CropBatch(
-        rgb=np.concatenate([p[0] for p in parts]),
-        depth=np.concatenate([p[1] for p in parts]),
-        mask=np.concatenate([p[2] for p in parts]),
-    )
+    arrays = {"rgb": cb.rgb, "depth": np.asarray(cb.depth, np.float32), "mask": cb.mask}
+    return len(R), {k: np.asarray(v) for k, v in arrays.items()}
 
 
 # ----------------------------------------------------------------------------- codebook pool
@@ -248,15 +204,20 @@ def codebook_pool(
     render processes when the pool must be built (or pass a shared ``runner``)."""
     grid = RotationGrid.uniform(int(k))
 
-    def build() -> tuple[dict[str, np.ndarray], dict]:
-        with _task_runner(runner, workers) as r:
-            desc = f"codebook pool {obj.name} k={k}"
-            cb = render_crops_parallel(obj, grid.rotations, spec, r, progress, desc)
-        meta = {"kind": "codebook", "object": obj.name, "crop": spec.to_dict(), "k": int(k)}
-        return {"rgb": cb.rgb, "depth": cb.depth, "mask": cb.mask}, meta
+    meta = {"kind": "codebook", "object": obj.name, "crop": spec.to_dict(), "k": int(k)}
+    desc = f"codebook pool {obj.name} k={k}"
+
+    def build(r: TaskRunner) -> PoolBuild:
+        def render(ranges: list[tuple[int, int]]) -> Iterator[dict[str, np.ndarray]]:
+            tasks = [(obj, grid.rotations[a:b], spec) for a, b in ranges]
+            done = int(k) - _remaining(ranges)
+            return _iter_chunks(_crops_task, tasks, r, desc, progress, int(k), done)
+
+        return PoolBuild(int(k), _chunks(int(k)), render, meta)
 
     path = codebook_pool_path(obj, spec, k, cache_dir)
-    arrays = _load_or_build(path, ["rgb", "depth", "mask"], mmap, build)
+    with _task_runner(runner, workers) as r:
+        arrays = load_or_build(path, ["rgb", "depth", "mask"], mmap, lambda: build(r))
     return grid, CropBatch(rgb=arrays["rgb"], depth=arrays["depth"], mask=arrays["mask"])
 
 
@@ -445,28 +406,31 @@ def obs_pool(
 ) -> ObsPool:
     """The observation pool of ``obj`` (``cfg``: the obs_pool config section), cached."""
 
-    def build() -> tuple[dict[str, np.ndarray], dict]:
-        n = int(cfg["num_entries"])
+    n = int(cfg["num_entries"])
+    meta = {
+        "kind": "obs",
+        "object": obj.name,
+        "crop": spec.to_dict(),
+        "settings": cfg,
+        "window_size": window_size(spec, cfg["margin"]),
+    }
+
+    def build(r: TaskRunner) -> PoolBuild:
         poses = sample_obs_poses(obj.diameter, cfg, n, np.random.default_rng([cfg["seed"], 1001]))
-        tasks = [
-            (obj, spec, cfg["margin"], {k: v[a:b] for k, v in poses.items()})
-            for a, b in _chunks(n, 32)
-        ]
-        with _task_runner(runner, workers) as r:
-            parts = _run_chunks(_obs_task, tasks, r, f"obs pool {obj.name}", progress, n)
-        arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        arrays.update(R_ego=poses["R_ego"], t=poses["t"], K=poses["K"])
-        meta = {
-            "kind": "obs",
-            "object": obj.name,
-            "crop": spec.to_dict(),
-            "settings": cfg,
-            "window_size": window_size(spec, cfg["margin"]),
-        }
-        return arrays, meta
+
+        def render(ranges: list[tuple[int, int]]) -> Iterator[dict[str, np.ndarray]]:
+            tasks = [
+                (obj, spec, cfg["margin"], {k: v[a:b] for k, v in poses.items()}) for a, b in ranges
+            ]
+            desc = f"obs pool {obj.name}"
+            return _iter_chunks(_obs_task, tasks, r, desc, progress, n, n - _remaining(ranges))
+
+        fixed = {k: poses[k] for k in ("R_ego", "t", "K")}
+        return PoolBuild(n, _chunks(n, 32), render, meta, fixed)
 
     path = obs_pool_path(obj, spec, cfg, cache_dir)
-    arrays = _load_or_build(path, list(ObsPool.FIELDS), mmap, build)
+    with _task_runner(runner, workers) as r:
+        arrays = load_or_build(path, list(ObsPool.FIELDS), mmap, lambda: build(r))
     return ObsPool(**{k: arrays[k] for k in ObsPool.FIELDS}, path=path)
 
 
@@ -530,30 +494,37 @@ def occluder_pool(
     if not objects:
         return _empty_occluder_pool(size)
 
-    def build() -> tuple[dict[str, np.ndarray], dict]:
+    n = int(cfg["num_entries"])
+    meta = {"kind": "occluders", **_occluder_parts(objects, size, cfg)}
+    meta["names"] = [o.name for o in objects]
+
+    def build(r: TaskRunner) -> PoolBuild:
         rng = np.random.default_rng([cfg["seed"], 2002])
-        n = int(cfg["num_entries"])
         counts = [n // len(objects) + (i < n % len(objects)) for i in range(len(objects))]
-        rgbs, masks = [], []
-        with _task_runner(runner, workers) as r:
-            for o, c in zip(objects, counts, strict=True):
-                if c == 0:
-                    continue
+        rots = [random_rotations(c, rng) if c else np.zeros((0, 3, 3)) for c in counts]
+        # chunks never span two objects: (object index, first entry of the object, a, b)
+        spans, a0 = [], 0
+        for i, c in enumerate(counts):
+            spans += [(i, a0, a0 + a, a0 + b) for a, b in _chunks(c)]
+            a0 += c
+        of_chunk = {(a, b): (i, first) for i, first, a, b in spans}
+
+        def render(ranges: list[tuple[int, int]]) -> Iterator[dict[str, np.ndarray]]:
+            tasks = []
+            for a, b in ranges:
+                i, first = of_chunk[(a, b)]
+                o = objects[i]
                 spec = CropSpec.for_object(o.diameter, size)
-                desc = f"occluder pool {o.name}"
-                cb = render_crops_parallel(o, random_rotations(c, rng), spec, r, progress, desc)
-                rgbs.append(cb.rgb)
-                masks.append(cb.mask)
-        arrays = {"rgb": np.concatenate(rgbs), "mask": np.concatenate(masks)}
-        meta = {
-            "kind": "occluders",
-            **_occluder_parts(objects, size, cfg),
-            "names": [o.name for o in objects],
-        }
-        return arrays, meta
+                tasks.append((o, rots[i][a - first : b - first], spec))
+            desc = f"occluder pool {'+'.join(o.name for o in objects)}"
+            crops = _iter_chunks(_crops_task, tasks, r, desc, progress, n, n - _remaining(ranges))
+            return ({"rgb": c["rgb"], "mask": c["mask"]} for c in crops)
+
+        return PoolBuild(n, [(a, b) for _, _, a, b in spans], render, meta)
 
     path = occluder_pool_path(objects, size, cfg, cache_dir)
-    arrays = _load_or_build(path, ["rgb", "mask"], mmap, build)
+    with _task_runner(runner, workers) as r:
+        arrays = load_or_build(path, ["rgb", "mask"], mmap, lambda: build(r))
     return OccluderPool(arrays["rgb"], arrays["mask"])
 
 

@@ -30,6 +30,7 @@ from chpf.bop import BopDataset
 from chpf.bundle import MANIFEST, PRECISION_FILES, Bundle, sha256_file
 from chpf.crops import crop_affines, extract_crops
 from chpf.errors import BundleError
+from export.qdq_input import fold_input_chain
 from export.writer import write_manifest
 
 INT8_SUFFIX = ".int8.onnx"
@@ -78,7 +79,9 @@ def calibration_crops(
 
 
 def _quantize(src: Path, calibration: np.ndarray) -> bytes:
-    """The int8 QDQ model (bytes) of the encoder at ``src``, calibrated on crops (N,S,S,3)."""
+    """The int8 QDQ model (bytes) of the encoder at ``src``, calibrated on crops (N,S,S,3);
+    its uint8 input feeds the first convolution directly where that is bit-identical
+    (export.qdq_input)."""
     from onnxruntime.quantization import (
         CalibrationDataReader,
         QuantFormat,
@@ -109,9 +112,10 @@ def _quantize(src: Path, calibration: np.ndarray) -> bytes:
                 weight_type=QuantType.QInt8,
                 activation_type=QuantType.QUInt8,
             )
-            return dst.read_bytes()
+            model = dst.read_bytes()
     finally:
         root_logger.setLevel(level)
+    return fold_input_chain(model, calibration) or model
 
 
 def _embed(model: bytes | Path, crops: np.ndarray, threads: int) -> np.ndarray:

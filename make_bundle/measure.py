@@ -48,7 +48,11 @@ def measure_render(obj, size: int, seconds: float = 2.0) -> float:
             return n / (time.perf_counter() - t0)
 
 
-def measure_ae_steps(trainer_args: list[str], steps: int = 4) -> tuple[float, str]:
+def measure_ae_steps(
+    trainer_args: list[str], seconds: float = 3.0, warmup: int = 2
+) -> tuple[float, str]:
+    """(autoencoder training steps per second, precision): ``warmup`` steps (kernel set-up)
+    are not timed, then steps run for at least ``seconds`` (and at least 3 steps)."""
     import torch
     import yaml
 
@@ -69,19 +73,24 @@ def measure_ae_steps(trainer_args: list[str], steps: int = 4) -> tuple[float, st
     s = model.config.size
     x = torch.rand(bs, 3, s, s, device=dev)
     dtype = torch.bfloat16 if prec.startswith("bf16") else torch.float16
-    t0 = 0.0
-    for i in range(steps + 1):
-        if i == 1:
-            t0 = time.perf_counter()
+
+    def step() -> None:
         with torch.autocast(dev, dtype=dtype, enabled=prec.endswith("mixed")):
             recon, _ = model(x)
             loss = torch.nn.functional.mse_loss(recon.float(), x)
         opt.zero_grad()
         loss.backward()
         opt.step()
-    if dev == "cuda":
-        torch.cuda.synchronize()
-    return steps / (time.perf_counter() - t0), prec
+        if dev == "cuda":
+            torch.cuda.synchronize()
+
+    for _ in range(warmup):
+        step()
+    n, t0 = 0, time.perf_counter()
+    while n < 3 or time.perf_counter() - t0 < seconds:
+        step()
+        n += 1
+    return n / (time.perf_counter() - t0), prec
 
 
 def measure(obj, size: int, trainer_args: list[str]) -> Rates:

@@ -7,12 +7,25 @@ from dataclasses import dataclass, field
 
 from chpf.errors import ConfigError
 
-# share of the budget per stage group (README, "chpf-make-bundle")
-SPLIT = {"data": 0.25, "ae": 0.25, "ch": 0.30, "rest": 0.20}
+# shares of the budget left after the fixed costs (README, "chpf-make-bundle")
+SPLIT = {"data": 0.25, "ae": 0.25, "ch": 0.30}
+MARGIN = 0.10  # of the budget, kept free for what the estimates miss
 # nominal rates of the shipped recipe on a 2-core bf16 CPU (docs/shipped-bundle.md)
 PAIRS_PER_S = 600_000 / (18 * 60)  # pairs with the pool's rendering
 AE_STEPS_PER_S = 5000 / 600
 CH_STEPS_PER_S = 11758 / 1170
+# seconds each stage costs besides its sized work (process start-ups, loading models and data,
+# the validation codebook and the last validation after max_time, writing): a 10-minute box run
+# on this 2-core CPU at load 5-6 took train_ae 25 s beyond its max_time, train_ch 9 s, codebook
+# 0.2 s, export 5 s, evaluate 21 s, sequence 3 s, track 4 s (README, "chpf-make-bundle");
+# rounded up for slower meshes
+OVERHEAD_S = {
+    "ae_data": 10, "pairs_data": 10, "heldout": 15, "train_ae": 30, "codebook": 5,
+    "train_ch": 15, "export": 15, "evaluate": 30, "sequence": 10, "track": 10,
+}  # fmt: skip
+TRAIN_MIN_S = 20  # a training stage never gets less max_time than this
+DEFAULT_BUDGET_S = 5400  # --budget's default, 90 min
+SHORT_BUDGET_S = 1800  # below it: smaller held-out sets, codebooks and test sequence
 
 
 def parse_budget(text: str) -> float:
@@ -42,77 +55,118 @@ class Plan:
     ch_steps: int
     ch_time_s: int
     seq_frames: int
+    est_s: dict[str, float] = field(default_factory=dict)  # estimated seconds per stage
     ae_config: str = "configs/train_ae.yaml"
     ch_config: str = "configs/train_ch.yaml"
     extra_gen: list[str] = field(default_factory=list)
 
+    def sizes(self) -> dict[str, str]:
+        """Stage -> what it makes, in words."""
+        t = self.test_n
+        return {
+            "ae_data": f"{self.ae_n} samples / {self.ae_pool} renders",
+            "pairs_data": f"{self.pairs_n} pairs / {self.pairs_pool} renders",
+            "heldout": f"{t} ae + {t} pairs / {self.test_pool} renders",
+            "train_ae": f"<= {self.ae_steps} steps, <= {self.ae_time_s} s",
+            "codebook": f"{self.codebook_k} views",
+            "train_ch": f"<= {self.ch_steps} steps, <= {self.ch_time_s} s",
+            "export": f"K = {self.export_k}",
+            "evaluate": f"{t} crops + pairs",
+            "sequence": f"1 scene x {self.seq_frames} frames",
+            "track": "CH-PF + PoseRBPF",
+        }
+
     def rows(self) -> list[tuple[str, str, float]]:
         """(stage, size, estimated minutes)."""
-        b = self.budget_s / 60
-        d = b * SPLIT["data"]
-        r = b * SPLIT["rest"]
-        return [
-            ("ae_data", f"{self.ae_n} samples / {self.ae_pool} renders", d * 0.15),
-            ("pairs_data", f"{self.pairs_n} pairs / {self.pairs_pool} renders", d * 0.75),
-            (
-                "heldout",
-                f"{self.test_n} ae + {self.test_n} pairs / {self.test_pool} renders",
-                d * 0.1,
-            ),
-            ("train_ae", f"<= {self.ae_steps} steps, <= {self.ae_time_s} s", b * SPLIT["ae"]),
-            ("codebook", f"{self.codebook_k} views", r * 0.1),
-            ("train_ch", f"<= {self.ch_steps} steps, <= {self.ch_time_s} s", b * SPLIT["ch"]),
-            ("export", f"K = {self.export_k}", r * 0.35),
-            ("evaluate", f"{self.test_n} crops + pairs", r * 0.25),
-            ("sequence", f"1 scene x {self.seq_frames} frames", r * 0.05),
-            ("track", "CH-PF + PoseRBPF", r * 0.25),
-        ]
+        return [(k, v, self.est_s.get(k, 0.0) / 60) for k, v in self.sizes().items()]
+
+    def after(self, stage: str) -> float:
+        """Estimated seconds of the stages after ``stage``."""
+        names = list(self.sizes())
+        return sum(self.est_s.get(k, 0.0) for k in names[names.index(stage) + 1 :])
 
 
 # a 12-triangle box at 64x64 on this CPU, one process (DESIGN.md: ~2 ms per crop)
 NOMINAL_RENDERS_PER_S = 500.0
 
 
-def make_plan(budget_s: float, preset: str | None = None, rates=None, workers: int = 2) -> Plan:
-    """``rates`` (make_bundle.measure.Rates, or None for the nominal rates) scales the sizes:
-    data by the measured render rate (never above the recipe's), training steps by the
-    measured autoencoder step rate."""
+def _tiny(budget_s: float) -> Plan:
+    return Plan(
+        preset="tiny", budget_s=budget_s, crop_size=32, ae_n=64, ae_pool=48, pairs_n=64,
+        pairs_pool=48, test_n=32, test_pool=24, codebook_k=64, export_k=64, ae_steps=4,
+        ae_time_s=60, ch_steps=4, ch_time_s=60, seq_frames=4,
+        est_s={"ae_data": 2, "pairs_data": 1, "heldout": 1, "train_ae": 12, "codebook": 1,
+               "train_ch": 9, "export": 3, "evaluate": 4, "sequence": 1, "track": 1},
+        ae_config="configs/train_ae_tiny.yaml", ch_config="configs/train_ch_tiny.yaml",
+        extra_gen=["--set", "occluder_pool.num_entries=12", "--samples-per-shard", "16"],
+    )  # fmt: skip
+
+
+def make_plan(
+    budget_s: float,
+    preset: str | None = None,
+    rates=None,
+    workers: int = 2,
+    spent_s: float = 0.0,
+) -> Plan:
+    """Stage sizes that fit ``budget_s`` seconds, of which ``spent_s`` are gone (measuring).
+
+    The fixed costs (``OVERHEAD_S``, the held-out sets, the export's codebook renders) and a
+    ``MARGIN`` come off first; the rest is split by ``SPLIT``. ``rates``
+    (make_bundle.measure.Rates, or None for the nominal rates) scales the data sizes by the
+    measured render rate (never above the recipe's) and the step limits by the measured
+    autoencoder step rate; every training stops at its ``max_time`` share.
+    """
     if preset == "tiny":
-        return Plan(
-            preset="tiny", budget_s=budget_s, crop_size=32, ae_n=64, ae_pool=48, pairs_n=64,
-            pairs_pool=48, test_n=32, test_pool=24, codebook_k=64, export_k=64, ae_steps=4,
-            ae_time_s=60, ch_steps=4, ch_time_s=60, seq_frames=4,
-            ae_config="configs/train_ae_tiny.yaml", ch_config="configs/train_ch_tiny.yaml",
-            extra_gen=["--set", "occluder_pool.num_entries=12"],
-        )  # fmt: skip
+        return _tiny(budget_s)
     if preset is not None:
         raise ConfigError(f"--preset: only 'tiny' exists, got {preset!r}")
     if budget_s < 300:
         raise ConfigError("--budget: at least 5m (use --preset tiny for a smoke test)")
-    d = budget_s * SPLIT["data"]
     f_render, ae_rate, ch_rate = 1.0, AE_STEPS_PER_S, CH_STEPS_PER_S
+    renders_per_s = NOMINAL_RENDERS_PER_S * 2
     if rates is not None:
-        per_s = rates.renders_per_s * min(max(workers, 1), 2) / 2
-        f_render = min(1.0, max(0.1, per_s / NOMINAL_RENDERS_PER_S))
+        renders_per_s = rates.renders_per_s * min(max(workers, 1), 2)
+        f_render = min(1.0, max(0.1, renders_per_s / 2 / NOMINAL_RENDERS_PER_S))
         ae_rate = rates.ae_steps_per_s
         ch_rate = CH_STEPS_PER_S * ae_rate / AE_STEPS_PER_S
-    pairs_n = int(PAIRS_PER_S * f_render * d * 0.75)
-    ae_n = min(60_000, int(PAIRS_PER_S * f_render * d * 0.15 * 1.5))
-    ae_time = int(budget_s * SPLIT["ae"])
-    ch_time = int(budget_s * SPLIT["ch"])
+    pairs_per_s = PAIRS_PER_S * f_render
+    short = budget_s < SHORT_BUDGET_S
+    test_n, test_pool = (1000, 500) if short else (2000, 1000)
+    codebook_k = 4096 if budget_s < 3600 else 20_000
+    export_k = 4096 if budget_s < 3600 else 10_000
+    est = dict(OVERHEAD_S)
+    est["heldout"] += (2 * test_n + 2 * test_pool) / pairs_per_s
+    if export_k != codebook_k:  # the export renders its own codebook views
+        est["export"] += export_k / renders_per_s
+    free = budget_s * (1 - MARGIN) - spent_s - sum(est.values())
+    if free < 4 * TRAIN_MIN_S:
+        raise ConfigError(
+            f"--budget: {budget_s / 60:.0f} min leave {free:.0f} s for data and training on "
+            "this machine after the fixed costs; give a larger budget"
+        )
+    share = {k: free * v / sum(SPLIT.values()) for k, v in SPLIT.items()}
+    pairs_n = int(pairs_per_s * share["data"] * 5 / 6)
+    ae_n = min(60_000, int(pairs_per_s * share["data"] / 6 * 1.5))
+    ae_time, ch_time = int(share["ae"]), int(share["ch"])
+    est["ae_data"] += share["data"] / 6
+    est["pairs_data"] += share["data"] * 5 / 6
+    est["train_ae"] += ae_time
+    est["train_ch"] += ch_time
     return Plan(
         preset="budget", budget_s=budget_s, crop_size=64, ae_n=ae_n,
         ae_pool=max(1000, min(10_000, ae_n // 6)), pairs_n=pairs_n,
-        pairs_pool=max(2000, min(120_000, pairs_n // 5)), test_n=2000, test_pool=1000,
-        codebook_k=20_000 if budget_s >= 3600 else 4096,
-        export_k=10_000 if budget_s >= 3600 else 4096,
+        pairs_pool=max(2000, min(120_000, pairs_n // 5)), test_n=test_n, test_pool=test_pool,
+        codebook_k=codebook_k, export_k=export_k,
         ae_steps=max(100, min(5000, int(ae_rate * ae_time))), ae_time_s=ae_time,
         ch_steps=max(100, min(15000, int(ch_rate * ch_time))), ch_time_s=ch_time,
-        seq_frames=60,
+        seq_frames=30 if short else 60, est_s={k: round(v, 1) for k, v in est.items()},
     )  # fmt: skip
 
 
 def format_plan(plan: Plan) -> str:
     lines = ["| stage | size | est. min |", "| --- | --- | --- |"]
     lines += [f"| {s} | {z} | {m:.1f} |" for s, z, m in plan.rows()]
+    total = sum(plan.est_s.values()) / 60
+    lines.append(f"| total | of {plan.budget_s / 60:.0f} min | {total:.1f} |")
     return "\n".join(lines)

@@ -22,8 +22,34 @@ def _flat(d: Any, prefix: str = "") -> list[tuple[str, Any]]:
     return []
 
 
+def budget_cost(settings: dict, workers: int) -> list[str]:
+    """Markdown lines: the stages that a budget below the default made smaller than the default
+    budget's plan on the same measured rates would (nothing for the default or a preset)."""
+    from make_bundle.measure import Rates
+    from make_bundle.plan import DEFAULT_BUDGET_S, Plan, make_plan
+
+    base, measured = settings.get("base", {}), settings.get("measured")
+    if base.get("preset") is not None or base.get("budget_s", 0) >= DEFAULT_BUDGET_S:
+        return []
+    ref = make_plan(DEFAULT_BUDGET_S, None, Rates(**measured) if measured else None, workers)
+    mine, theirs = Plan(**settings["plan"]).sizes(), ref.sizes()
+    rows = [f"| {k} | {v} | {theirs[k]} |" for k, v in mine.items() if v != theirs[k]]
+    return [
+        f"## What the {base['budget_s'] / 60:.0f}-minute budget cost",
+        "",
+        f"Against the default budget ({DEFAULT_BUDGET_S // 60} min) on the same measured "
+        "rates, these stages were made smaller; expect a larger retrieval error and lower "
+        'AUCs than the default budget\'s bundle (README, "chpf-make-bundle").',
+        "",
+        "| stage | this budget | default budget |",
+        "| --- | --- | --- |",
+        *rows,
+        "",
+    ]
+
+
 def write_report(out: Path, work: Path, argv: list[str], settings: dict, plan_md: str,
-                 stage_md: str) -> Path:  # fmt: skip
+                 stage_md: str, workers: int) -> Path:  # fmt: skip
     lines = [
         "# chpf-make-bundle report",
         "",
@@ -48,13 +74,7 @@ def write_report(out: Path, work: Path, argv: list[str], settings: dict, plan_md
         stage_md,
         "",
     ]
-    base = settings.get("base", {})
-    if base.get("preset") == "tiny" or base.get("budget_s", 1e9) < 1800:
-        lines += [
-            "A short budget: fewer renders, samples and training steps than the shipped",
-            "recipe (90 minutes); expect a larger retrieval error and lower AUCs.",
-            "",
-        ]
+    lines += budget_cost(settings, workers)
     for name, title in (
         ("eval_ae", "Autoencoder retrieval (held-out ae crops, no jitter)"),
         ("eval_pairs", "Classifier, training family (pairs)"),

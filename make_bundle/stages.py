@@ -5,13 +5,17 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import shutil
+import subprocess
+import sys
+import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from make_bundle.plan import Plan
+from make_bundle.plan import OVERHEAD_S, TRAIN_MIN_S, Plan
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,9 +32,22 @@ class Ctx:
     trainer_args: list[str]
     progress: bool
     cache: Path
+    deadline: float = float("inf")  # time.monotonic() by which every stage should be done
+    notes: dict[str, str] = field(default_factory=dict)  # stage -> what changed at run time
+    shard: tuple[int, int] | None = None  # (I, M): data stages write only job I's shards
 
     def d(self, name: str) -> Path:
         return self.work / name
+
+    def train_seconds(self, stage: str, planned: int) -> int:
+        """max_time of a training stage: ``planned``, shortened (never below TRAIN_MIN_S) so
+        that its start-up and the estimated stages after it still end by the deadline."""
+        left = self.deadline - time.monotonic() - OVERHEAD_S[stage] - self.plan.after(stage)
+        secs = int(max(TRAIN_MIN_S, min(planned, left)))
+        if secs < planned:
+            self.notes[stage] = f"max_time {planned} -> {secs} s (budget)"
+            print(f"{stage}: max_time {planned} s -> {secs} s to end within the budget")
+        return secs
 
 
 def _hms(seconds: int) -> str:
@@ -52,6 +69,8 @@ def _gen(c: Ctx, kind: str, out: str, n: int, pool: int, seed: int, extra: list[
         "--size", str(c.plan.crop_size), "--codebook-size", str(c.plan.codebook_k),
         "--set", f"obs_pool.num_entries={pool}", *c.plan.extra_gen, *extra,
     ]  # fmt: skip
+    if c.shard is not None:
+        argv += ["--shard", str(c.shard[0]), "--num-shards", str(c.shard[1])]
     if not c.progress:
         argv.append("--no-progress")
     _check(main(argv), f"chpf-gen-data {kind}")
@@ -77,15 +96,19 @@ def heldout(c: Ctx) -> list[str]:
 
 
 def _train(c: Ctx, kind: str, cfg: str, data: str, run: str, steps: int, secs: int, extra):
-    from training.cli import main
-
+    """chpf-train in its own process: Lightning's DDP launcher re-runs the command line of the
+    process for the other ranks, which must be chpf-train's (not chpf-make-bundle's)."""
+    secs = c.train_seconds(f"train_{kind}", secs)
     argv = [
         kind, "--config", str(ROOT / cfg), "--data.data_dir", str(c.d(data)),
         "--trainer.default_root_dir", str(c.d(run)), "--trainer.max_steps", str(steps),
         "--trainer.max_time", _hms(secs), "--seed_everything", str(c.seed), *extra,
         *c.trainer_args,
     ]  # fmt: skip
-    _check(main(argv), f"chpf-train {kind}")
+    path = os.environ.get("PYTHONPATH")
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + (os.pathsep + path if path else "")}
+    cmd = [sys.executable, "-m", "training.cli", *argv]
+    _check(subprocess.run(cmd, env=env).returncode, f"chpf-train {kind}")
 
 
 def ckpt(c: Ctx, run: str) -> Path:
@@ -188,6 +211,10 @@ STAGES: list[tuple[str, Callable[[Ctx], list[str]]]] = [
     ("track", track),
 ]
 
+STAGE_FNS = dict(STAGES)
+# made by chpf-gen-data, which resumes them shard by shard (and writes shard jobs' parts)
+DATA_STAGES = ("ae_data", "pairs_data", "heldout")
+
 # outputs a stage removes before it starts again after an interruption
 OUTPUTS = {
     "ae_data": ["ae"], "pairs_data": ["pairs"], "heldout": ["ae_test", "pairs_test"],
@@ -196,7 +223,11 @@ OUTPUTS = {
 }  # fmt: skip
 
 
-def clean(c: Ctx, stage: str) -> None:
+def clean(c: Ctx, stage: str, data_too: bool = False) -> None:
+    """Remove what ``stage`` makes before it runs again; the data stages' shards stay (they
+    resume) unless ``data_too`` (the settings changed)."""
+    if stage in DATA_STAGES and not data_too:
+        return
     for name in OUTPUTS[stage]:
         p = c.d(name)
         if p.is_dir():

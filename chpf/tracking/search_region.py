@@ -19,15 +19,20 @@ doubtful frame, until the window (the area times the scale, clipped) covers the 
 every frame that is not doubtful divides it by ``widen`` again, down to 1. Predict-only frames
 change nothing. Without probes (``probes: 0``, the default) phi_cand draws its candidates'
 centres in the whole window and, once widened, its orientations uniformly (no look-up crop:
-the estimate's place is in doubt); with ``probes`` > 0 a widened window is scanned with
-probe boxes: a grid at half the estimate's box (at most ``probes`` boxes; shifted at random
-each frame), each box of a random size from
-1 / ``probe_sizes`` to ``probe_sizes`` times the estimate's box (its depth is in doubt too).
-The likelihood's autoencoder scores the crop at each probe (its best cosine with the whole
-codebook, ``BundleLikelihood.probe_similarities``: one encoder pass of the probes' crops);
-the best probe becomes the region's box, so phi_cand draws around it, at its depth, with
-orientations that match its crop. Once the candidates there score well the doubt falls and
-the region shrinks back onto the estimate.
+the estimate's place is in doubt); with ``probes`` > 0 a widened frame is scanned over the
+whole image with square probe boxes (``SearchRegion.probe``): a grid (shifted at random each
+frame) whose sides lie within ``probe_sizes`` of the object's side at the depth of the last
+frame that was not widened, plus the best probes of the previous widened frame and jittered
+copies of them, then a finer pass of jittered copies of the best; every probe lies inside the
+image. Each is scored by ``probe_score`` (chpf.tracking.probe_scores: 1 - the classifier's C
+against the crop's best-cosine entry, or that cosine); the best probe becomes the region's
+box, so phi_cand draws around it, at its depth, with orientations
+that match its crop. A probe more than half a side from the estimate that scores better than
+the estimate's own box (scored with the probes) counts the frame as doubtful whatever its
+alpha (``elsewhere``): the filter can settle on a wrong place with a low alpha. Once the
+candidates at the object score well the doubt falls and the region shrinks back onto the
+estimate. Both scores peak on the object only within about 0.1 of its box side and 15 % of
+its size, so a probe must land almost on it.
 
 ``box_source`` (the ``search`` section of the tracking config) picks the box of each frame:
 ``auto`` the detection when the frame has one, else the search region unless a detector is
@@ -44,17 +49,20 @@ import math
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Literal, Protocol
+from typing import Literal
 
 import numpy as np
 
 from chpf.config_schema import Section, setting
 from chpf.geometry import project_points
+from chpf.tracking.probe_scores import Probed, ProbeScoreName, probe_scores
 from chpf.tracking.types import Box, Frame, Region, TrackResult
 
 BoxSourceName = Literal["auto", "detections", "estimate"]
 BOX_SOURCES: tuple[str, ...] = typing.get_args(BoxSourceName)
 """Where a frame's box comes from (module docstring)."""
+JITTER = 0.15
+"""Probe refinement: centre offsets and size changes of a jittered box (``jittered``)."""
 
 
 @dataclass
@@ -64,9 +72,10 @@ class SearchConfig(Section):
     window's scale factor per doubtful frame; patience, doubtful frames in a row before it
     widens; alpha_doubt, CH-PF's / CH-RBPF's alpha above which a frame is doubtful; l_doubt,
     the mean L of the particles below which a frame of another method is doubtful; probes,
-    the most boxes scored per frame in a widened window (0: no probes, phi_cand draws in the
-    whole window); probe_sizes, their sizes range from
-    1 / probe_sizes to probe_sizes times the estimate's box (log-uniform)."""
+    the most grid boxes scored per widened frame over the whole image (0: no probes, phi_cand
+    draws in the whole window); probe_sizes, their sides range from 1 / probe_sizes to
+    probe_sizes times the object's side at the last calm depth (log-uniform); probe_score, how a
+    probe is scored (chpf.tracking.probe_scores.PROBE_SCORES)."""
 
     box_source: BoxSourceName = "auto"
     margin: float = setting(0.2, ge=0.0)
@@ -75,13 +84,8 @@ class SearchConfig(Section):
     alpha_doubt: float = setting(0.6, ge=0.0, le=1.0)
     l_doubt: float = setting(0.55, ge=0.0, le=1.0)
     probes: int = setting(0, ge=0)
-    probe_sizes: float = setting(2.0, ge=1.0)
-
-
-class Prober(Protocol):
-    """What the probes need from a likelihood (BundleLikelihood has it)."""
-
-    def probe_similarities(self, frame: Frame, boxes: np.ndarray) -> np.ndarray: ...
+    probe_sizes: float = setting(1.2, ge=1.0)
+    probe_score: ProbeScoreName = "classifier"
 
 
 def projected_box(points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> Box | None:
@@ -115,6 +119,29 @@ def full_scale(box: Box, width: int, height: int) -> float:
     return max(sx, sy, 1.0)
 
 
+def jittered(boxes: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` copies of each box (M,4) (x, y, w, h) pixels (box-major), each centre moved by up
+    to ``JITTER`` of its box's width and height, each size times a log-uniform factor within
+    1 +- ``JITTER`` (C's basin around the object is about that wide)."""
+    boxes = np.repeat(np.asarray(boxes, dtype=np.float64).reshape(-1, 4), n, axis=0)
+    m = boxes.shape[0]
+    cx = boxes[:, 0] + 0.5 * boxes[:, 2] + JITTER * boxes[:, 2] * rng.uniform(-1.0, 1.0, m)
+    cy = boxes[:, 1] + 0.5 * boxes[:, 3] + JITTER * boxes[:, 3] * rng.uniform(-1.0, 1.0, m)
+    size = np.exp(rng.uniform(-1.0, 1.0, m) * math.log(1.0 + JITTER))
+    w, h = boxes[:, 2] * size, boxes[:, 3] * size
+    return np.stack([cx - w / 2, cy - h / 2, w, h], axis=1)
+
+
+def inside(boxes: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Boxes (M,4) (x, y, w, h) pixels moved into the width x height image where they fit (a
+    crop reaching past the border is padded, and the classifier takes some padded crops for
+    the object)."""
+    boxes = np.array(boxes, dtype=np.float64)
+    boxes[:, 0] = np.clip(boxes[:, 0], 0.0, np.maximum(width - boxes[:, 2], 0.0))
+    boxes[:, 1] = np.clip(boxes[:, 1], 0.0, np.maximum(height - boxes[:, 3], 0.0))
+    return boxes
+
+
 def clip_box(box: Box, width: int, height: int) -> Box | None:
     """``box`` clipped to the width x height image; None when nothing of it is inside."""
     x0, y0 = max(box[0], 0.0), max(box[1], 0.0)
@@ -137,7 +164,7 @@ class SearchRegion:
         self,
         config: SearchConfig,
         points: np.ndarray | Callable[[], np.ndarray],
-        prober: Prober | None = None,
+        prober: Probed | None = None,
     ) -> None:
         self.config = config
         self._points = points
@@ -151,6 +178,9 @@ class SearchRegion:
         self._full = math.inf  # the scale that covered the image at the last region
         self._box: Box | None = None  # the last region's box
         self.detector_running = False  # a box came after the first (``auto``)
+        self._kept = np.zeros((0, 4))  # the best probes (M,4) of the last probed frame
+        self._z = 1.0  # metres: the estimate's depth at the last frame not probed
+        self.elsewhere = False  # the last probes found a better place than the estimate's
 
     @property
     def points(self) -> np.ndarray:
@@ -182,46 +212,57 @@ class SearchRegion:
             return Region(box, whole, whole, math.inf, cue=False)
         return Region(box, window, window, scale, cue=scale <= 1.0)
 
-    def probe_boxes(self, region: Region, rng: np.random.Generator) -> np.ndarray:
-        """The probes (M,4) (x, y, w, h) pixels of a widened region: a grid over its window
-        whose step is half the region box's width and height (larger when that gives more than
-        ``probes``), shifted at random by up to one step, each box of the region box's size
-        times a log-uniform factor in [1 / probe_sizes, probe_sizes]."""
-        win, (w, h) = region.window, region.box[2:]
-        step_x, step_y = 0.5 * w, 0.5 * h
-        nx, ny = max(int(win[2] / step_x), 1), max(int(win[3] / step_y), 1)
-        thin = math.sqrt(nx * ny / self.config.probes)
-        if thin > 1.0:
-            nx, ny = max(int(nx / thin), 1), max(int(ny / thin), 1)
-        step_x, step_y = win[2] / nx, win[3] / ny
+    def probe_boxes(self, window: Box, side: float, rng: np.random.Generator, n: int) -> np.ndarray:
+        """At most ``n`` square probes (M,4) (x, y, w, h) pixels: a grid over ``window`` whose
+        step spreads ``n`` over its area, shifted at random by up to one step, each of side
+        ``side`` pixels times a log-uniform factor in [1 / probe_sizes, probe_sizes]."""
+        step = max(math.sqrt(window[2] * window[3] / max(n, 1)), 1.0)
+        nx, ny = max(int(window[2] / step), 1), max(int(window[3] / step), 1)
         gx, gy = np.meshgrid(np.arange(nx), np.arange(ny))
-        cx = win[0] + (gx.ravel() + rng.random()) * step_x
-        cy = win[1] + (gy.ravel() + rng.random()) * step_y
-        size = np.exp(rng.uniform(-1.0, 1.0, cx.shape[0]) * math.log(self.config.probe_sizes))
-        return np.stack([cx - w * size / 2, cy - h * size / 2, w * size, h * size], axis=1)
+        cx = window[0] + (gx.ravel() + rng.random()) * window[2] / nx
+        cy = window[1] + (gy.ravel() + rng.random()) * window[3] / ny
+        sizes = side * np.exp(
+            rng.uniform(-1.0, 1.0, cx.shape[0]) * math.log(self.config.probe_sizes)
+        )
+        return np.stack([cx - sizes / 2, cy - sizes / 2, sizes, sizes], axis=1)
 
-    def probe(self, frame: Frame, region: Region, rng: np.random.Generator) -> Region:
-        """``region`` with its box moved to the best probe (the highest
-        ``probe_similarities``) and its area around that box. Two passes: ``probe_boxes``, then
-        ``probes`` / 2 boxes around the best of them (centres within half a grid step, sizes
-        within 25 %)."""
+    def probe(
+        self, frame: Frame, region: Region, t: np.ndarray, rng: np.random.Generator
+    ) -> Region:
+        """``region`` with its box moved to the best probe (the highest ``probe_scores`` of
+        ``probe_score``) and its area around that box. Per frame at most 1.5 ``probes`` boxes in
+        two passes: the best ``probes`` / 8 boxes of the previous probed frame and a jittered
+        copy of each (the object moves little between frames: the search goes on where it
+        left off) and ``probe_boxes`` for the rest of ``probes``, of the object's side at the
+        depth of the last frame that was not widened (its depth changes little while it is
+        lost, unlike the estimate's); then ``probes`` / 2 jittered copies of the best
+        (``jittered``). The best ``probes`` / 8 of both passes are kept. The estimate's own
+        box (at the estimate t (3,) metres) is scored with the first pass: ``elsewhere`` says
+        whether the best probe beats it more than half a side away from it."""
         assert self.prober is not None
-        boxes = self.probe_boxes(region, rng)
-        sims = np.asarray(self.prober.probe_similarities(frame, boxes))
-        best = boxes[int(np.argmax(sims))]
-        n = max(self.config.probes // 2, 1)
-        cx = best[0] + 0.5 * best[2] + 0.25 * best[2] * rng.uniform(-1.0, 1.0, n)
-        cy = best[1] + 0.5 * best[3] + 0.25 * best[3] * rng.uniform(-1.0, 1.0, n)
-        size = np.exp(rng.uniform(-1.0, 1.0, n) * math.log(1.25))
-        w, h = best[2] * size, best[3] * size
-        fine = np.stack([cx - w / 2, cy - h / 2, w, h], axis=1)
-        fine_sims = np.asarray(self.prober.probe_similarities(frame, fine))
-        if fine_sims.max() > sims.max():
-            best = fine[int(np.argmax(fine_sims))]
-        box = (float(best[0]), float(best[1]), float(best[2]), float(best[3]))
+        kind, n = self.config.probe_score, self.config.probes
         height, width = frame.rgb.shape[:2]
+        whole = (0.0, 0.0, float(width), float(height))
+        fx, extent = float(frame.K[0, 0]), self.prober.box_extent
+        own = fx * extent / max(float(t[2]), 1e-3)
+        u, v = project_points(np.asarray(t, dtype=np.float64)[None], frame.K)[0]
+        own_box = np.array([[u + 0.5 - own / 2, v + 0.5 - own / 2, own, own]])
+        kept = np.concatenate([self._kept, jittered(self._kept, 1, rng)])
+        grid = self.probe_boxes(whole, fx * extent / self._z, rng, n - len(kept))
+        coarse = inside(np.concatenate([kept, grid]), width, height)
+        both = probe_scores(self.prober, frame, np.concatenate([own_box, coarse]), kind)
+        own_score, coarse_scores = both[0], both[1:]
+        best = coarse[int(np.argmax(coarse_scores))]
+        fine = inside(jittered(best[None], max(n // 2, 1), rng), width, height)
+        boxes = np.concatenate([coarse, fine])
+        scores = np.concatenate([coarse_scores, probe_scores(self.prober, frame, fine, kind)])
+        order = np.argsort(-scores)
+        self._kept = boxes[order[: max(n // 8, 1)]]
+        box = tuple(float(v) for v in boxes[order[0]])
+        off = np.hypot(box[0] + box[2] / 2 - u - 0.5, box[1] + box[3] / 2 - v - 0.5)
+        self.elsewhere = bool(scores[order[0]] > own_score and off > 0.5 * own)
         area = clip_box(scaled_box(box, 1.0 + self.config.margin), width, height)
-        return Region(box, area or region.window, region.window, region.scale)
+        return Region(box, area or whole, whole, region.scale)
 
     def doubtful(self, result: TrackResult, n_particles: int) -> bool | None:
         """Whether a frame's result shows doubt (module docstring); None for a frame that was
@@ -234,11 +275,12 @@ class SearchRegion:
         return bool(mean_l < self.config.l_doubt)
 
     def update(self, result: TrackResult, n_particles: int) -> None:
-        """Widen or shrink after a frame (module docstring); N = ``n_particles``."""
+        """Widen or shrink after a frame (module docstring; a frame whose probes found a better
+        place elsewhere counts as doubtful); N = ``n_particles``."""
         doubt = self.doubtful(result, n_particles)
         if doubt is None:
             return
-        if not doubt:
+        if not doubt and not self.elsewhere:
             self.streak = 0
             self.scale = max(self.scale / self.config.widen, 1.0)
             return
@@ -267,5 +309,9 @@ class SearchRegion:
         region = self.region(estimate[0], estimate[1], frame.K, width, height)
         probing = self.prober is not None and self.config.probes > 0
         if region is not None and region.scale > 1.0 and probing:
-            region = self.probe(frame, region, rng)
+            region = self.probe(frame, region, estimate[1], rng)
+        else:
+            self._kept = np.zeros((0, 4))
+            self.elsewhere = False
+            self._z = max(float(estimate[1][2]), 1e-3)
         return replace(frame, box=None, region=region)

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+import yaml
 
 from chpf.bundle import Bundle
 from chpf.errors import ConfigError
@@ -82,10 +83,45 @@ def test_plan_scales_with_the_measured_rates() -> None:
     fast = make_plan(600, rates=Rates(500.0, 8.0, "bf16-mixed"))
     slow = make_plan(600, rates=Rates(100.0, 4.0, "32-true"))
     assert slow.pairs_n < fast.pairs_n and slow.ae_steps < fast.ae_steps
-    assert slow.ch_steps < fast.ch_steps and slow.ae_time_s == fast.ae_time_s == 150
-    assert "| train_ae |" in format_plan(fast)
+    assert slow.ch_steps < fast.ch_steps
+    assert "| train_ae |" in format_plan(fast) and "| total |" in format_plan(fast)
     with pytest.raises(ConfigError, match="at least 5m"):
         make_plan(60)
+
+
+@pytest.mark.parametrize("budget", [300, 600, 5400])
+@pytest.mark.parametrize("rates", [None, (500.0, 8.0), (60.0, 2.0)])
+def test_the_plan_accounts_for_every_stage_within_the_budget(budget, rates) -> None:
+    from make_bundle.measure import Rates
+    from make_bundle.plan import MARGIN, OVERHEAD_S, make_plan
+
+    r = Rates(*rates, "32-true") if rates else None
+    try:
+        plan = make_plan(budget, rates=r, spent_s=20.0)
+    except ConfigError as err:  # too short for this machine: said so, not overrun
+        assert budget == 300 and "fixed costs" in str(err)
+        return
+    assert set(plan.est_s) == set(plan.sizes())  # every stage has an estimate
+    assert all(plan.est_s[k] >= v for k, v in OVERHEAD_S.items())
+    assert plan.est_s["train_ae"] >= plan.ae_time_s and plan.est_s["train_ch"] >= plan.ch_time_s
+    assert 20.0 + sum(plan.est_s.values()) <= budget * (1 - MARGIN) + 1
+
+
+def test_training_is_shortened_to_end_by_the_deadline(tmp_path: Path) -> None:
+    import time
+
+    from make_bundle.plan import OVERHEAD_S, TRAIN_MIN_S, make_plan
+    from make_bundle.stages import Ctx
+
+    plan = make_plan(600)
+    ctx = Ctx("box", "m", tmp_path, tmp_path, plan, 1, 0, [], False, tmp_path)
+    assert ctx.train_seconds("train_ae", plan.ae_time_s) == plan.ae_time_s  # no deadline
+    late = plan.after("train_ae") + OVERHEAD_S["train_ae"] + 40
+    ctx.deadline = time.monotonic() + late
+    assert 35 <= ctx.train_seconds("train_ae", plan.ae_time_s) <= 40
+    assert "max_time" in ctx.notes["train_ae"]
+    ctx.deadline = time.monotonic()  # already late: the floor
+    assert ctx.train_seconds("train_ch", plan.ch_time_s) == TRAIN_MIN_S
 
 
 def test_an_interrupted_stage_restarts_cleanly(made: Path, capsys) -> None:
@@ -97,3 +133,64 @@ def test_an_interrupted_stage_restarts_cleanly(made: Path, capsys) -> None:
     assert "| track | CH-PF + PoseRBPF |" in out and "| export | K = 64 |" in out
     assert "== track" in out and "== export" not in out
     assert not (work / "track" / "stale.txt").exists() and (work / "done" / "track.json").is_file()
+
+
+def _shard_files(work: Path) -> dict[Path, int]:
+    return {p: p.stat().st_mtime_ns for d in ("ae", "pairs", "ae_test", "pairs_test")
+            for p in sorted((work / d).glob("shard_*.npz"))}  # fmt: skip
+
+
+def test_shard_jobs_then_a_final_run_make_the_bundle(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "box"
+    work = tmp_path / "box.work"
+    assert main([*ARGS, "--out", str(out), "--shard", "0", "--num-shards", "2"]) == 0
+    first = _shard_files(work)
+    names = {p.name for p in first if p.parent.name == "pairs"}
+    assert names == {"shard_00000.npz", "shard_00002.npz"}  # 4 shards of 16: job 0's two
+    assert not (work / "run_ae").exists() and not list((work / "done").glob("*.json"))
+    assert main([*ARGS, "--out", str(out), "--shard", "1", "--num-shards", "2"]) == 0
+    both = _shard_files(work)
+    assert {p.name for p in both if p.parent.name == "pairs"} == {
+        f"shard_{i:05d}.npz" for i in range(4)
+    }
+    assert all(both[p] == t for p, t in first.items())  # job 1 left job 0's shards alone
+    assert "without --shard" in capsys.readouterr().out
+    assert main([*ARGS, "--out", str(out)]) == 0
+    assert _shard_files(work) == both  # the final run made no shard again, it trained
+    Bundle.load(out)
+    assert (out / "report.md").is_file()
+
+
+@pytest.mark.parametrize("shard", [["--shard", "2", "--num-shards", "2"], ["--num-shards", "2"]])
+def test_a_bad_shard_is_one_line_and_exit_2(tmp_path: Path, capsys, shard) -> None:
+    import sys
+
+    from make_bundle.cli import cli
+
+    old = sys.argv
+    sys.argv = ["chpf-make-bundle", *ARGS, "--out", str(tmp_path / "b"), *shard]
+    try:
+        with pytest.raises(SystemExit) as e:
+            cli()
+    finally:
+        sys.argv = old
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--shard" in err
+    assert not (tmp_path / "b.work").exists()
+
+
+def test_trainer_options_reach_both_trainings(tmp_path: Path, capfd) -> None:
+    # as tests/training/test_ddp.py for chpf-train: two CPU processes (gloo) per training
+    ddp = ["--trainer.strategy", "ddp", "--trainer.devices", "2", "--trainer.accelerator", "cpu"]
+    out = tmp_path / "box"
+    assert main([*ARGS, "--out", str(out), *ddp]) == 0
+    logs = capfd.readouterr()
+    for run in ("run_ae", "run_ch"):
+        (cfg,) = (tmp_path / "box.work" / run).rglob("config.yaml")
+        trainer = yaml.safe_load(cfg.read_text())["trainer"]
+        assert (trainer["strategy"], str(trainer["devices"]), trainer["accelerator"]) == (
+            "ddp", "2", "cpu"
+        )  # fmt: skip
+    assert (logs.out + logs.err).count("MEMBER: 2/2") >= 2  # a world of two, each training
+    Bundle.load(out)
