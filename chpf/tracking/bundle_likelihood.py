@@ -49,8 +49,8 @@ import numpy as np
 from chpf.bundle import Bundle
 from chpf.crops import CropSpec, crop_affines, extract_crops
 from chpf.errors import ConfigError
-from chpf.geometry import allocentric_to_egocentric, egocentric_to_allocentric, project_points
-from chpf.tracking.candidates import backproject, valid_box
+from chpf.geometry import allocentric_to_egocentric, egocentric_to_allocentric
+from chpf.tracking.candidates import box_translations, valid_box
 from chpf.tracking.config import BOX_SHAPES, C_MODES, L_FROM_COS
 from chpf.tracking.depth_scores import depth_scores
 from chpf.tracking.model_outline import outline_points
@@ -139,7 +139,7 @@ class BundleLikelihood:
         self.z_min = float(z_min)
         self.c_box = c_box
         self.c_box_shape = c_box_shape
-        self._outline: np.ndarray | None = None  # (M,3) object frame, made on first use
+        self._outline: np.ndarray | None = None  # (3,M) object frame, made on first use
         self.neighbours = (
             neighbour_table(self.grid, refine_neighbours) if refine_neighbours > 1 else None
         )
@@ -267,11 +267,12 @@ class BundleLikelihood:
         """The larger side (N,) pixels of the box of the model's outline points projected at
         poses R (N,3,3), t (N,3) metres (depths clamped to z_min)."""
         if self._outline is None:
-            self._outline = outline_points(self.bundle)
-        cam = np.einsum("mj,nij->nmi", self._outline, R) + t[:, None, :]
-        cam[..., 2] = np.maximum(cam[..., 2], self.z_min)
-        uv = project_points(cam, K)
-        return np.ptp(uv, axis=1).max(axis=1)
+            self._outline = np.ascontiguousarray(outline_points(self.bundle).T)  # (3,M)
+        cam = np.matmul(R, self._outline) + t[:, :, None]  # (N,3,M)
+        z = np.maximum(cam[:, 2], self.z_min)
+        width = K[0, 0] * np.ptp(cam[:, 0] / z, axis=1)  # the principal point cancels out
+        height = K[1, 1] * np.ptp(cam[:, 1] / z, axis=1)
+        return np.maximum(width, height)
 
     def _with_box_scale(
         self, C: np.ndarray, frame: Frame, R: np.ndarray, t: np.ndarray
@@ -322,33 +323,8 @@ class BundleLikelihood:
         box = valid_box(frame.cue_box())
         if box is None:
             return None
-        t0 = self._box_centres(np.array([box]), np.asarray(frame.K, dtype=np.float64))
+        t0 = box_translations(np.array([box]), frame.K, self.box_extent)
         return self.codebook_scores(frame, t0).cos[0], t0[0]
-
-    def probe_similarities(self, frame: Frame, boxes: np.ndarray) -> np.ndarray:
-        """The best cosine with the whole codebook (M,) of the crop at each box's centre, boxes
-        (M,4) (x, y, w, h) pixels, depth from each box's size as ``box_centre_cosines``: how
-        much the object seems to be there (chpf.tracking.search_region's probes)."""
-        t0 = self._box_centres(np.asarray(boxes, dtype=np.float64), np.asarray(frame.K))
-        return self.codebook_scores(frame, t0).cos.max(axis=1)
-
-    def _box_centres(self, boxes: np.ndarray, K: np.ndarray) -> np.ndarray:
-        """Translations (M,3) metres of the object at the centres of boxes (M,4), at the depth
-        where the codebook's median object extent spans each box."""
-        return backproject(
-            boxes[:, 0] + 0.5 * (boxes[:, 2] - 1.0),
-            boxes[:, 1] + 0.5 * (boxes[:, 3] - 1.0),
-            self._box_depth(boxes, K, self.median_extent_px),
-            np.asarray(K, dtype=np.float64),
-        )
-
-    def _box_depth(self, boxes: np.ndarray, K: np.ndarray, extent_px: float) -> np.ndarray:
-        """Depth (m) (M,) at which an object of ``extent_px`` crop pixels spans boxes (M,4)."""
-        return (
-            self.spec.render_distance
-            * (extent_px / np.maximum(boxes[:, 2], boxes[:, 3]))
-            * (K[0, 0] / self.spec.focal)
-        )
 
     # ------------------------------------------------------------------ MCL + E2E
     def single_frame_estimate(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:
