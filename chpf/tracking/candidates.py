@@ -58,6 +58,17 @@ def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, K: np.ndarray) -> n
     return np.stack([x, y, z], axis=-1)
 
 
+def box_translations(boxes: np.ndarray, K: np.ndarray, box_extent: float) -> np.ndarray:
+    """Translations (M,3) metres of an object of extent ``box_extent`` metres at the centres of
+    boxes (M,4) (x, y, w, h) pixels, at the depth where it spans each box's longer side."""
+    boxes = np.asarray(boxes, dtype=np.float64)
+    K = np.asarray(K, dtype=np.float64)
+    z = K[0, 0] * box_extent / np.maximum(boxes[:, 2], boxes[:, 3])
+    u = boxes[:, 0] + 0.5 * (boxes[:, 2] - 1.0)
+    v = boxes[:, 1] + 0.5 * (boxes[:, 3] - 1.0)
+    return backproject(u, v, z, K)
+
+
 def _median_valid(values: np.ndarray) -> np.ndarray:
     """Row-wise median of the positive entries of (n, m); nan where a row has none."""
     vals = np.where(values > 0, values, np.nan)

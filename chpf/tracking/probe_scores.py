@@ -25,7 +25,7 @@ from typing import Literal, Protocol
 
 import numpy as np
 
-from chpf.tracking.candidates import backproject
+from chpf.tracking.candidates import box_translations
 from chpf.tracking.types import CodebookScores, Frame
 
 ProbeScoreName = Literal["classifier", "cosine"]
@@ -40,17 +40,6 @@ class Probed(Protocol):
     def box_extent(self) -> float: ...
 
     def codebook_scores(self, frame: Frame, t: np.ndarray) -> CodebookScores: ...
-
-
-def box_translations(boxes: np.ndarray, K: np.ndarray, box_extent: float) -> np.ndarray:
-    """Translations (M,3) metres of an object of extent ``box_extent`` metres at the centres of
-    boxes (M,4) (x, y, w, h) pixels, at the depth where it spans each box's longer side."""
-    boxes = np.asarray(boxes, dtype=np.float64)
-    K = np.asarray(K, dtype=np.float64)
-    z = K[0, 0] * box_extent / np.maximum(boxes[:, 2], boxes[:, 3])
-    u = boxes[:, 0] + 0.5 * (boxes[:, 2] - 1.0)
-    v = boxes[:, 1] + 0.5 * (boxes[:, 3] - 1.0)
-    return backproject(u, v, z, K)
 
 
 def probe_scores(

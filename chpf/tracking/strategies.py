@@ -106,12 +106,21 @@ every particle weighed by its normalised importance weight w_i: S_X = sum_i w_i 
 (all alike when the weights collapsed)."""
 
 
+BoxShape = Literal["gauss", "ramp"]
+BOX_SHAPES: tuple[str, ...] = typing.get_args(BoxShape)
+"""How the box-scale counter-evidence C_box grows with r = ln(box side / projected side) > 0
+(a hypothesis that would project smaller than the detection box; chpf.tracking.bundle_likelihood):
+"gauss" 1 - exp(-r^2 / (2 s^2)), the detector's log-size noise s; "ramp" clip((rho - 1 - m) / m,
+0, 1), nothing below a margin m of the ratio rho."""
+
+
 @dataclass
 class CHPFConfig(Section):
     """CH-PF: c_mode, where the Counter-Hypothetical likelihood C comes from (C_MODES; depth
     and both need RGB-D); sums, which particles alpha's sums run over (CHPF_SUMS); l_power,
-    the exponent p of L in those sums (S_L sums L^p; 1 = the paper's L); c_box, the margin of
-    the box-scale counter-evidence added to C (None = none; chpf.tracking.bundle_likelihood);
+    the exponent p of L in those sums (S_L sums L^p; 1 = the paper's L); c_box, the scale (s or
+    m) of the box-scale counter-evidence added to C (None = none; chpf.tracking.bundle_likelihood)
+    and c_box_shape its shape (BOX_SHAPES);
     c_weight, the exponent k of the importance weights w (1 - C)^k (0 = the paper's: C only
     sets alpha); keep_belief, the round(alpha N) particles drawn from phi_cand join N resampled
     from the belief (N + round(alpha N) weighed at the next frame) instead of replacing
@@ -122,7 +131,8 @@ class CHPFConfig(Section):
     c_mode: CMode = "learned"
     sums: CHPFSums = "weighted"
     l_power: float = setting(3.0, gt=0.0)
-    c_box: float | None = setting(0.2, gt=0.0)
+    c_box: float | None = setting(0.1, gt=0.0)
+    c_box_shape: BoxShape = "gauss"
     c_weight: float = setting(1.0, ge=0.0)
     keep_belief: bool = True
     temper: float = setting(1.0, ge=0.0, le=1.0)
@@ -155,8 +165,9 @@ class CHPF(Strategy):
         weighs it down: L alone barely tells a pose 0.3 diameters off from one within 0.1
         (their mean L 0.67 and 0.70 on the development suite), C does (0.43 and 0.10). And a
         set in doubt trusts the likelihood less: when most of the object is hidden, a sharp w
-        hands the set to whichever particle best matches the visible sliver
-        (docs/chpf-ablations.md)."""
+        hands the set to whichever particle best matches the visible sliver. C's factor is
+        not tempered: flattening it too let doubt feed itself (flat weights, a wider set, more
+        doubt) until alpha sat at 0.99 (docs/chpf-ablations.md)."""
         w = scores.w
         if self.config.temper > 0.0:
             w = np.asarray(w, dtype=np.float64) ** (1.0 - self.config.temper * self.last_alpha)

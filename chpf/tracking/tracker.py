@@ -136,6 +136,7 @@ class Tracker:
             c_depth_margin=lik.c_depth_margin,
             depth_no_data=lik.depth_no_data,
             c_box=cfg.chpf.c_box,
+            c_box_shape=cfg.chpf.c_box_shape,
             refine_neighbours=lik.refine_neighbours,
         )
         diameter = float(bundle.obj_info.diameter)

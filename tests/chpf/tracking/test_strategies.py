@@ -52,7 +52,10 @@ def test_chpf_paper_sums_ignore_weights_and_freshness():
 
 
 def test_chpf_default_is_weighted_sums_with_l_cubed_and_the_box_scale_c():
-    assert (CHPFConfig().sums, CHPFConfig().l_power, CHPFConfig().c_box) == ("weighted", 3.0, 0.2)
+    config = CHPFConfig()
+    assert (config.sums, config.l_power, config.c_box, config.c_box_shape) == (
+        "weighted", 3.0, 0.1, "gauss",
+    )
     e_c = W_FIXED @ C_FIXED
     e_l3 = W_FIXED @ L_FIXED**3
     assert CHPF().alpha(scores(), W_FIXED, FRESH) == pytest.approx(e_c / (e_c + e_l3))
