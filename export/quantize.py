@@ -82,6 +82,14 @@ def _quantize(src: Path, calibration: np.ndarray) -> bytes:
     """The int8 QDQ model (bytes) of the encoder at ``src``, calibrated on crops (N,S,S,3);
     its uint8 input feeds the first convolution directly where that is bit-identical
     (export.qdq_input)."""
+    model = quantize_qdq(src, calibration)
+    return fold_input_chain(model, calibration) or model
+
+
+def quantize_qdq(src: Path, calibration: np.ndarray) -> bytes:
+    """onnxruntime's static QDQ quantisation (bytes) of the encoder at ``src`` (int8 weights
+    per channel, uint8 activations), calibrated on crops (N,S,S,3) uint8 in batches of 32;
+    its input still goes through the exporter's Cast / Mul chain."""
     from onnxruntime.quantization import (
         CalibrationDataReader,
         QuantFormat,
@@ -112,10 +120,9 @@ def _quantize(src: Path, calibration: np.ndarray) -> bytes:
                 weight_type=QuantType.QInt8,
                 activation_type=QuantType.QUInt8,
             )
-            model = dst.read_bytes()
+            return dst.read_bytes()
     finally:
         root_logger.setLevel(level)
-    return fold_input_chain(model, calibration) or model
 
 
 def _embed(model: bytes | Path, crops: np.ndarray, threads: int) -> np.ndarray:

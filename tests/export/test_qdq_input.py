@@ -9,6 +9,7 @@ onnx = pytest.importorskip("onnx")
 
 from chpf.tracking.demo import shipped_bundle  # noqa: E402
 from export.qdq_input import _embed, _rewrite, fold_input_chain  # noqa: E402
+from export.quantize import quantize_qdq  # noqa: E402
 
 
 def _chain_ops(model: onnx.ModelProto) -> list[str]:
@@ -22,38 +23,13 @@ def test_shipped_int8_encoders_read_the_crops_directly(name):
     assert not _chain_ops(model) and _rewrite(model) is None
 
 
-def test_unfolded_quantized_model_folds(tmp_path):
+def test_unfolded_quantized_model_folds():
     """A QDQ model with the exporter's Cast / Mul chain (built here from the float32 encoder)
     comes out without it and with the same outputs."""
-    from onnxruntime.quantization import (
-        CalibrationDataReader,
-        QuantFormat,
-        QuantType,
-        quantize_static,
-    )
-
     rng = np.random.default_rng(1)
     calib = rng.integers(0, 256, (16, 64, 64, 3), dtype=np.uint8)
     calib[0] = 255  # the input's range reaches 1.0: scale 1/255
-
-    class Reader(CalibrationDataReader):
-        def __init__(self) -> None:
-            self.batches = iter([{"crops": calib}])
-
-        def get_next(self):
-            return next(self.batches, None)
-
-    dst = tmp_path / "q.onnx"
-    quantize_static(
-        str(shipped_bundle() / "ae_encoder.onnx"),
-        str(dst),
-        Reader(),
-        quant_format=QuantFormat.QDQ,
-        per_channel=True,
-        weight_type=QuantType.QInt8,
-        activation_type=QuantType.QUInt8,
-    )
-    model = dst.read_bytes()
+    model = quantize_qdq(shipped_bundle() / "ae_encoder.onnx", calib)
     assert _chain_ops(onnx.load_from_string(model))
     folded = fold_input_chain(model, calib)
     assert folded is not None and not _chain_ops(onnx.load_from_string(folded))
