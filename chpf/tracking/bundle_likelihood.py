@@ -139,7 +139,7 @@ class BundleLikelihood:
         self.z_min = float(z_min)
         self.c_box = c_box
         self.c_box_shape = c_box_shape
-        self._outline: np.ndarray | None = None  # (3,M) object frame, made on first use
+        self._outline: np.ndarray | None = None  # ``outline``, made on first use
         self.neighbours = (
             neighbour_table(self.grid, refine_neighbours) if refine_neighbours > 1 else None
         )
@@ -263,12 +263,18 @@ class BundleLikelihood:
         moved = G[best] @ np.swapaxes(G[idx], -1, -2) @ R_allo
         return best, cos[rows, j], allocentric_to_egocentric(moved, t)
 
+    @property
+    def outline(self) -> np.ndarray:
+        """(M,3) metres, object frame: the model's outline points (chpf.tracking.model_outline),
+        computed once."""
+        if self._outline is None:
+            self._outline = outline_points(self.bundle)
+        return self._outline
+
     def _projected_side(self, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> np.ndarray:
         """The larger side (N,) pixels of the box of the model's outline points projected at
         poses R (N,3,3), t (N,3) metres (depths clamped to z_min)."""
-        if self._outline is None:
-            self._outline = np.ascontiguousarray(outline_points(self.bundle).T)  # (3,M)
-        cam = np.matmul(R, self._outline) + t[:, :, None]  # (N,3,M)
+        cam = np.matmul(R, self.outline.T) + t[:, :, None]  # (N,3,M)
         z = np.maximum(cam[:, 2], self.z_min)
         width = K[0, 0] * np.ptp(cam[:, 0] / z, axis=1)  # the principal point cancels out
         height = K[1, 1] * np.ptp(cam[:, 1] / z, axis=1)

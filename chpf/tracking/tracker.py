@@ -31,7 +31,6 @@ from chpf.tracking.candidates import CandidateSampler
 from chpf.tracking.codebook_candidates import CodebookRotations
 from chpf.tracking.config import MODALITIES, TrackConfig, make_config
 from chpf.tracking.methods import Filter, get_method, make_filter
-from chpf.tracking.model_outline import outline_points
 from chpf.tracking.search_region import SearchRegion
 from chpf.tracking.types import Box, Frame, TrackResult
 
@@ -158,7 +157,7 @@ class Tracker:
             method, self.likelihood, cfg, self.candidates, np.random.default_rng(self.seed)
         )
         self.boxes = BoxChecker("Tracker.step")  # warns once per tracker
-        self.search = SearchRegion(cfg.search, lambda: outline_points(bundle), self.likelihood)
+        self.search = SearchRegion(cfg.search, lambda: self.likelihood.outline, self.likelihood)
         self.frame = 0  # frames stepped since the last reset
 
     @classmethod
