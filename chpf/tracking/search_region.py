@@ -45,8 +45,10 @@ place is in doubt). With ``probes`` > 0:
   window widens after ``patience`` frames.
 
 The Rao-Blackwellised filters (PoseRBPF, CH-RBPF) draw at least ``poserbpf.search_fraction``
-of their particles from phi_cand on a widened frame (chpf.tracking.rbpf); without it PoseRBPF
-draws only on its threshold reset.
+of their particles from phi_cand where a probe took over (``Region.probed``,
+chpf.tracking.rbpf); without probes PoseRBPF draws only on its threshold reset. Probes are off
+by default: on the dev suite they cost both filters AUC under heavy occlusion
+(docs/own-recording.md).
 
 ``box_source`` (the ``search`` section of the tracking config) picks the box of each frame:
 ``auto`` the detection when the frame has one, else the search region unless a detector is
