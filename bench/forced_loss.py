@@ -1,19 +1,18 @@
 """Forced loss (issue 23): does a tracker without detections find the object again after it jumps?
 
 ``python -m bench.forced_loss --out DIR`` takes the dev suite's unoccluded scenes (4 x 60 frames,
-320x240, held-out family, seed 2000) and shifts the target by ``--fraction`` (0.3) of the image
-width between frames ``--jump`` and ``--jump`` + 1 (0-based 19 -> 20: im_id 21 is the first
-shifted frame), along the camera's x axis towards the other half of the image; the ground
+320x240, held-out family, seed 2000; ``--sequence-seed`` and ``--scenes`` make others of the same
+design, to tune on scenes that are not reported) and shifts the target by ``--fraction`` (0.3) of
+the image width between frames ``--jump`` and ``--jump`` + 1 (0-based 19 -> 20: im_id 21 is the
+first shifted frame), along the camera's x axis towards the other half of the image; the ground
 truth follows. The scenes are generated into ``--cache-dir``/forced_loss (their own folder: the
-jump is not part of a suite's hash). Every method tracks them with the tracking YAML
-``--config`` (default: ``search.box_source: estimate``, i.e. the first frame's box only) and
-the seeds; the table printed gives per sequence and seed the frames from the jump to the first
-frame with ADD-S < 0.1 diameter ("-": not within the sequence), then per method the runs
-re-acquired within 30 frames. ``--figure PNG`` draws the
-search window's width, alpha and the ADD-S error over the frames of the first job that finds
-the object again (else the first job), tracked again with a Tracker (the bench's summaries
-hold no region).
-"""
+jump is not part of a suite's hash). Every method tracks them with the tracking YAML ``--config``
+(default: ``search.box_source: estimate``, i.e. the first frame's box only) and the seeds; the
+table printed gives per sequence and seed the frames from the jump to the first frame with ADD-S <
+0.1 diameter ("-": not within the sequence), then per method the runs re-acquired within 30 frames.
+``--figure PNG`` draws the search window's width, alpha and the ADD-S error over the frames of the
+first job that finds the object again (else the first job), tracked again with a Tracker (the
+bench's summaries hold no region)."""
 
 from __future__ import annotations
 
@@ -120,6 +119,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--config", default=None, help="tracking YAML (default: box_source estimate)")
     p.add_argument("--methods", default="chpf")
     p.add_argument("--seeds", default="0,1,2")
+    p.add_argument(
+        "--sequence-seed",
+        type=int,
+        default=None,
+        help="the scenes' generator seed (default: the dev suite's, 2000)",
+    )
+    p.add_argument("--scenes", type=int, default=None, help="scenes (default: the dev suite's, 4)")
     p.add_argument("--jump", type=int, default=20, help="first shifted frame (0-based)")
     p.add_argument("--fraction", type=float, default=0.3, help="of the image width")
     p.add_argument("--workers", type=int, default=1)
@@ -130,13 +136,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = Path(tempfile.mkdtemp()) / "estimate.yaml"
         cfg.write_text("search:\n  box_source: estimate\n")
         config = str(cfg)
+    sequences: dict[str, object] = {"occlusion": ["none"]}
+    if args.sequence_seed is not None:
+        sequences["seed"] = args.sequence_seed
+    if args.scenes is not None:
+        sequences["scenes_per_level"] = args.scenes
     suite = load_suite(
         "dev",
         {
             "methods": args.methods.split(","),
             "modalities": ["rgb"],
             "seeds": [int(s) for s in args.seeds.split(",")],
-            "sequences": {"occlusion": ["none"]},
+            "sequences": sequences,
             "tracking": {"config": config},
         },
     )

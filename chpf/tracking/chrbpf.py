@@ -43,9 +43,10 @@ class CHRBPF(RaoBlackwellisedFilter):
         self.rule.reset()
 
     @property
-    def keep_belief(self) -> bool:
-        """The rule's choice (``CHPF.keeps_belief``)."""
-        return self.rule.keeps_belief
+    def keep_belief(self) -> bool:  # type: ignore[override]
+        """The rule's choice (``CHPF.keeps_belief``), or a frame whose draws come from a probe
+        that took over (``RaoBlackwellisedFilter``)."""
+        return self.rule.keeps_belief or self._searching
 
     def _reinvigoration(
         self,

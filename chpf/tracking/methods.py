@@ -139,7 +139,9 @@ class PoseRBPFConfig(Section):
     sigma: cosine -> rotation likelihood width; neighbours: grid neighbours of the rotation
     prior's diffusion; rotation_sigma: its width in radians (None = the grid spacing);
     reset_threshold: best cosine below which all particles are redrawn; plus_fraction:
-    PoseRBPF++'s share reinvigorated every frame; rotation_estimate: argmax | mean.
+    PoseRBPF++'s share reinvigorated every frame; search_fraction: the least share drawn from
+    phi_cand (joining the belief) on a frame whose search probe took over (chpf.tracking.rbpf;
+    0: off); rotation_estimate: argmax | mean.
     """
 
     sigma: float = setting(0.1, gt=0.0)
@@ -147,6 +149,7 @@ class PoseRBPFConfig(Section):
     rotation_sigma: float | None = None
     reset_threshold: float = 0.4
     plus_fraction: float = setting(0.5, ge=0.0, le=1.0)
+    search_fraction: float = setting(0.5, ge=0.0, le=1.0)
     rotation_estimate: Literal["argmax", "mean"] = "argmax"
 
 
@@ -158,6 +161,7 @@ def _rotation_filter_options(options: PoseRBPFConfig) -> dict[str, Any]:
         "rotation_sigma": options.rotation_sigma,
         "n_neighbours": options.neighbours,
         "rotation_estimate": options.rotation_estimate,
+        "search_fraction": options.search_fraction,
     }
 
 

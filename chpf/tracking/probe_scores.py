@@ -8,13 +8,16 @@ likelihood's scale-normalised crop at that translation) is compared with the who
 - ``classifier``: 1 - C, C the counter-hypothetical classifier's p(misaligned) of the crop
   against its best-cosine entry (one more encoder pass when the bundle's classifier has its
   own encoder);
-- ``cosine``: that best cosine.
+- ``cosine``: that best cosine;
+- ``odds``: log10(L^3 / C) with L = max(that cosine, 0): the log-odds of "aligned" that
+  CH-PF's rule gives one hypothesis (alpha_i = C / (C + L^3), its default ``l_power`` 3), so
+  that a probe needs both a good cosine and a low C; in decades, which is how C varies (10^-3
+  on the object, 10^-1 a tenth of a side away).
 
-Both peak on the object only within about 0.1 of its side and 15 % of its size; a background
-patch or a distractor can score about as well as the object's own box (docs/own-recording.md:
-the classifier re-acquired a little more often after a forced jump).
-
-chpf.tracking.search_region moves phi_cand's box to the best probe.
+All peak on the object only within about 0.1 of its side and 15 % of its size; a background
+patch or a distractor can score about as well as the object's own box, which is why
+chpf.tracking.search_region lets a probe take over phi_cand's box only when it beats what was
+seen at its place while the object was tracked elsewhere (docs/own-recording.md).
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import numpy as np
 from chpf.tracking.candidates import box_translations
 from chpf.tracking.types import CodebookScores, Frame
 
-ProbeScoreName = Literal["classifier", "cosine"]
+ProbeScoreName = Literal["odds", "classifier", "cosine"]
 PROBE_SCORES: tuple[str, ...] = typing.get_args(ProbeScoreName)
 """How probe boxes are scored (module docstring)."""
 
@@ -42,17 +45,42 @@ class Probed(Protocol):
     def codebook_scores(self, frame: Frame, t: np.ndarray) -> CodebookScores: ...
 
 
-def probe_scores(
-    likelihood: Probed, frame: Frame, boxes: np.ndarray, kind: ProbeScoreName
-) -> np.ndarray:
-    """Scores (M,) in [-1, 1] of probe boxes (M,4) (x, y, w, h) pixels in ``frame`` by ``kind``
-    (module docstring); higher: the object more likely there. The frame's box and region are
-    ignored (the classifier's box-scale term reads a detection box)."""
+def probe_evidence(
+    likelihood: Probed, frame: Frame, boxes: np.ndarray, with_c: bool = True
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The evidence of probe boxes (M,4) (x, y, w, h) pixels in ``frame``: the best codebook
+    cosine (M,) of each crop and the classifier's C (M,) of the crop against that best entry
+    (None when ``with_c`` is false or the likelihood has no classifier). The frame's box and
+    region are ignored (the classifier's box-scale term reads a detection box)."""
     frame = replace(frame, box=None, region=None)
     t = box_translations(boxes, frame.K, likelihood.box_extent)
     scores = likelihood.codebook_scores(frame, t)
+    cos = scores.cos.max(axis=1)
+    if not with_c or scores.misaligned is None:
+        return cos, None
+    return cos, np.asarray(scores.misaligned(np.argmax(scores.cos, axis=1)), dtype=np.float64)
+
+
+def probe_scores(
+    likelihood: Probed, frame: Frame, boxes: np.ndarray, kind: ProbeScoreName
+) -> np.ndarray:
+    """Scores (M,) of probe boxes (M,4) (x, y, w, h) pixels in ``frame`` by ``kind`` (module
+    docstring; in [-1, 1], ``odds`` in decades); higher: the object more likely there."""
+    cos, C = probe_evidence(likelihood, frame, boxes, with_c=kind != "cosine")
     if kind == "cosine":
-        return scores.cos.max(axis=1)
-    if scores.misaligned is None:
-        raise ValueError("probe score 'classifier' needs a likelihood with a classifier")
-    return 1.0 - scores.misaligned(np.argmax(scores.cos, axis=1))
+        return cos
+    if C is None:
+        raise ValueError(f"probe score {kind!r} needs a likelihood with a classifier")
+    if kind == "odds":
+        return odds(cos, C)
+    return 1.0 - C
+
+
+ODDS_FLOOR = 1e-6
+"""``odds`` clips L and C to this from below (log10 of 0)."""
+
+
+def odds(cos: np.ndarray, C: np.ndarray, l_power: float = 3.0) -> np.ndarray:
+    """log10(L^l_power / C) (M,) of best cosines and C (M,) (module docstring)."""
+    L = np.maximum(np.asarray(cos, dtype=np.float64), ODDS_FLOOR)
+    return l_power * np.log10(L) - np.log10(np.maximum(np.asarray(C, dtype=np.float64), ODDS_FLOOR))

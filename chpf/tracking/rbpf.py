@@ -14,7 +14,15 @@ the codebook's allocentric orientations. Per frame with a box:
   around it, ``rotation_estimate="mean"``), allocentric -> egocentric at the estimated t;
 - resample: systematic; PoseRBPF++ draws ``reinvigorate`` (0.5) of the particles from phi_cand
   (uniform orientation distribution) every frame; both reset all particles from phi_cand when
-  the best similarity of the frame drops below ``reset_threshold``.
+  the best similarity of the frame drops below ``reset_threshold``;
+- a frame without a detection whose search region is a probe that took over
+  (``Frame.region.probed``: chpf.tracking.search_region widens the window after ``patience``
+  frames in a row whose likelihood says lost, scans it with probes and lets one take over when
+  it beats the estimate and the remembered look-alikes) draws at least ``search_fraction`` of N
+  from phi_cand, i.e. around that probe, and they join the N particles resampled from the belief
+  (a wrong draw dies at the next weighing, a right one takes over). Without it PoseRBPF draws
+  only on its reset, which a lost filter's similarity rarely triggers (the widened search then
+  never reaches the filter).
 
 Recorded: L_i = max(max_k c_ik, 0) (sum_L), alpha = fraction of particles drawn from phi_cand.
 """
@@ -47,6 +55,8 @@ class RaoBlackwellisedFilter(FilterLoop):
     sigma: width of the cosine-to-likelihood map. rotation_sigma: rad, Gaussian kernel of the
     rotation prior (None = the grid spacing); n_neighbours: grid neighbours per entry.
     reset_threshold: best cosine similarity below which every particle is redrawn.
+    search_fraction: the least share drawn from phi_cand on a frame whose search region is a
+    probe that took over, joining the belief (module docstring; 0: off).
     resampling: a scheme of ``chpf.tracking.resampling.RESAMPLERS``.
     """
 
@@ -62,6 +72,7 @@ class RaoBlackwellisedFilter(FilterLoop):
         n_neighbours: int = 12,
         reset_threshold: float = 0.4,
         reinvigorate: float = 0.0,
+        search_fraction: float = 0.5,
         rotation_estimate: str = "argmax",
         name: str = "poserbpf",
         resampling: str = "systematic",
@@ -77,6 +88,7 @@ class RaoBlackwellisedFilter(FilterLoop):
         self.sigma = float(sigma)
         self.reset_threshold = float(reset_threshold)
         self.reinvigorate = float(reinvigorate)
+        self.search_fraction = float(search_fraction)
         self.rotation_estimate = rotation_estimate
         self.name = name
         rot_sigma = rotation_sigma if rotation_sigma is not None else grid_spacing(self.grid)
@@ -91,6 +103,12 @@ class RaoBlackwellisedFilter(FilterLoop):
         self.t: np.ndarray | None = None
         self.P: np.ndarray | None = None  # (N, K) orientation distributions
         self.n_resets = 0
+        self._searching = False  # this frame's draws come from a probe that took over
+
+    @property
+    def keep_belief(self) -> bool:  # type: ignore[override]
+        """True on a frame whose draws come from a probe that took over (module docstring)."""
+        return self._searching
 
     @property
     def initialised(self) -> bool:
@@ -155,7 +173,23 @@ class RaoBlackwellisedFilter(FilterLoop):
         self.P = post
         weights = Weights.from_weights(wi)
         stage_ms["weigh"] = ms_since(t0)
-        return self._reinvigoration(cs, cos, weights, stage_ms)
+        return self._searched(frame, self._reinvigoration(cs, cos, weights, stage_ms))
+
+    def _searched(self, frame: Frame, weighed: Weighed) -> Weighed:
+        """``weighed`` with alpha raised to ``search_fraction`` on a frame whose search region is
+        a probe that took over (the drawn particles then join the belief: ``keep_belief``); a
+        reset or a collapse stays as it is."""
+        region = frame.region
+        widened = region is not None and region.probed and frame.box is None
+        self._searching = bool(
+            widened
+            and weighed.weights.W is not None
+            and weighed.alpha < 1.0
+            and self.search_fraction > 0.0
+        )
+        if self._searching and weighed.alpha < self.search_fraction:
+            return weighed._replace(alpha=self.search_fraction)
+        return weighed
 
     def _reinvigoration(
         self,

@@ -17,22 +17,38 @@ The region widens with the filter's doubt. A weighed frame is *doubtful* when
 After ``patience`` doubtful frames in a row the scale grows by ``widen`` at every further
 doubtful frame, until the window (the area times the scale, clipped) covers the whole image;
 every frame that is not doubtful divides it by ``widen`` again, down to 1. Predict-only frames
-change nothing. Without probes (``probes: 0``, the default) phi_cand draws its candidates'
-centres in the whole window and, once widened, its orientations uniformly (no look-up crop:
-the estimate's place is in doubt); with ``probes`` > 0 a widened frame is scanned over the
-whole image with square probe boxes (``SearchRegion.probe``): a grid (shifted at random each
-frame) whose sides lie within ``probe_sizes`` of the object's side at the depth of the last
-frame that was not widened, plus the best probes of the previous widened frame and jittered
-copies of them, then a finer pass of jittered copies of the best; every probe lies inside the
-image. Each is scored by ``probe_score`` (chpf.tracking.probe_scores: 1 - the classifier's C
-against the crop's best-cosine entry, or that cosine); the best probe becomes the region's
-box, so phi_cand draws around it, at its depth, with orientations
-that match its crop. A probe more than half a side from the estimate that scores better than
-the estimate's own box (scored with the probes) counts the frame as doubtful whatever its
-alpha (``elsewhere``): the filter can settle on a wrong place with a low alpha. Once the
-candidates at the object score well the doubt falls and the region shrinks back onto the
-estimate. Both scores peak on the object only within about 0.1 of its box side and 15 % of
-its size, so a probe must land almost on it.
+change nothing. Without probes (``probes: 0``) phi_cand draws its candidates' centres in the
+whole window and, once widened, its orientations uniformly (no look-up crop: the estimate's
+place is in doubt). With ``probes`` > 0:
+
+- a widened frame is scanned over the whole image with square probe boxes
+  (``SearchRegion.probe``): a grid (shifted at random each frame) whose sides lie within
+  ``probe_sizes`` of the object's side at the depth of the last frame that was not widened,
+  plus the best probes of the previous widened frame and jittered copies of them, then a finer
+  pass of jittered copies of the best; every probe lies inside the image. Each is scored by
+  ``probe_score`` (chpf.tracking.probe_scores: the log-odds log10(L^3 / C) of CH-PF's rule,
+  1 - C, or the best cosine). Both networks' scores peak on the object only within about 0.1
+  of its box side and 15 % of its size, so a probe must land almost on it;
+- a calm frame scores ``calm_probes`` boxes over the image (``SearchRegion.remember``) and
+  remembers the best places more than ``DECOY_AWAY`` sides from the estimate with their
+  scores: *decoys*, what looks like the object while it is tracked elsewhere (a distractor, a
+  patch of background). Under occlusion the object is hidden and such a place outscores the
+  estimate's box; after a jump the object appears where nothing scored as well before;
+- a probe's *gain* is its score less the best of the estimate's own box (and a few jittered
+  copies of it) and of the decoys around it. The probe with the highest gain takes over when
+  that gain exceeds ``probe_margin``: it becomes the region's box, so phi_cand draws around it,
+  at its depth, with orientations that match its crop, and the frame counts as doubtful
+  whatever its alpha (``elsewhere``: the window stays open while the filter has not moved
+  there). Otherwise phi_cand draws around the estimate as on a calm frame (``Region.scale``
+  1; the window is still recorded as searched). A calm frame whose own scan finds such a
+  gain counts as doubtful too (CH-PF can settle on a wrong place with a low alpha), so the
+  window widens after ``patience`` frames.
+
+The Rao-Blackwellised filters (PoseRBPF, CH-RBPF) draw at least ``poserbpf.search_fraction``
+of their particles from phi_cand where a probe took over (``Region.probed``,
+chpf.tracking.rbpf); without probes PoseRBPF draws only on its threshold reset. Probes are off
+by default: on the dev suite they cost both filters AUC under heavy occlusion
+(docs/own-recording.md).
 
 ``box_source`` (the ``search`` section of the tracking config) picks the box of each frame:
 ``auto`` the detection when the frame has one, else the search region unless a detector is
@@ -63,6 +79,11 @@ BOX_SOURCES: tuple[str, ...] = typing.get_args(BoxSourceName)
 """Where a frame's box comes from (module docstring)."""
 JITTER = 0.15
 """Probe refinement: centre offsets and size changes of a jittered box (``jittered``)."""
+OWN_JITTER = 4
+"""Jittered copies of the estimate's box scored with it (``SearchRegion._own_boxes``)."""
+DECOY_AWAY = 1.5
+"""A decoy (``SearchRegion.remember``) lies more than this many object sides from the
+estimate (nearer, the scores see the object's own shoulders)."""
 
 
 @dataclass
@@ -75,7 +96,10 @@ class SearchConfig(Section):
     the most grid boxes scored per widened frame over the whole image (0: no probes, phi_cand
     draws in the whole window); probe_sizes, their sides range from 1 / probe_sizes to
     probe_sizes times the object's side at the last calm depth (log-uniform); probe_score, how a
-    probe is scored (chpf.tracking.probe_scores.PROBE_SCORES)."""
+    probe is scored (chpf.tracking.probe_scores.PROBE_SCORES); probe_margin, how much a probe
+    must score above the estimate's own box and above what was remembered at its place to take
+    over (``SearchRegion.probe``); calm_probes, the probes scored per calm frame to remember
+    the places elsewhere that look like the object (decoys; 0: none remembered)."""
 
     box_source: BoxSourceName = "auto"
     margin: float = setting(0.2, ge=0.0)
@@ -85,7 +109,9 @@ class SearchConfig(Section):
     l_doubt: float = setting(0.55, ge=0.0, le=1.0)
     probes: int = setting(0, ge=0)
     probe_sizes: float = setting(1.2, ge=1.0)
-    probe_score: ProbeScoreName = "classifier"
+    probe_score: ProbeScoreName = "odds"
+    probe_margin: float = setting(0.5, ge=0.0)
+    calm_probes: int = setting(16, ge=0)
 
 
 def projected_box(points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> Box | None:
@@ -181,6 +207,8 @@ class SearchRegion:
         self._kept = np.zeros((0, 4))  # the best probes (M,4) of the last probed frame
         self._z = 1.0  # metres: the estimate's depth at the last frame not probed
         self.elsewhere = False  # the last probes found a better place than the estimate's
+        self.decoys = np.zeros((0, 4))  # boxes (M,4) elsewhere that looked like the object ...
+        self.decoy_scores = np.zeros(0)  # ... and their scores (M,) at the last calm frame
 
     @property
     def points(self) -> np.ndarray:
@@ -226,43 +254,119 @@ class SearchRegion:
         )
         return np.stack([cx - sizes / 2, cy - sizes / 2, sizes, sizes], axis=1)
 
+    def _own_box(self, frame: Frame, t: np.ndarray) -> tuple[np.ndarray, float]:
+        """The square box (1,4) of the object at the estimate t (3,) metres (side fx *
+        box_extent / z around its projection) and that side in pixels."""
+        assert self.prober is not None
+        side = float(frame.K[0, 0]) * self.prober.box_extent / max(float(t[2]), 1e-3)
+        u, v = project_points(np.asarray(t, dtype=np.float64)[None], frame.K)[0]
+        return np.array([[u + 0.5 - side / 2, v + 0.5 - side / 2, side, side]]), side
+
+    @staticmethod
+    def _own_boxes(
+        own_box: np.ndarray, rng: np.random.Generator, width: int, height: int
+    ) -> np.ndarray:
+        """The estimate's box (1,4) and ``OWN_JITTER`` jittered copies, inside the image: the
+        estimate's score is the best of them (a probe's is refined over frames; the
+        estimate's box alone, a tenth of a side off, scores orders of magnitude lower)."""
+        return inside(np.concatenate([own_box, jittered(own_box, OWN_JITTER, rng)]), width, height)
+
+    def gains(self, boxes: np.ndarray, scores: np.ndarray, own_box: np.ndarray,
+              own_score: float) -> np.ndarray:  # fmt: skip
+        """How much each probe (M,4) with ``scores`` (M,) beats what is known at its place: its
+        score less the estimate's own box's ``own_score`` and less the remembered score of
+        any decoy whose centre lies within half its side of the probe's; -inf for a probe
+        within half a side of the estimate's box (not elsewhere)."""
+        centres = boxes[:, :2] + boxes[:, 2:] / 2
+        own_c, own_side = own_box[0, :2] + own_box[0, 2:] / 2, float(own_box[0, 2])
+        bar = np.full(len(boxes), float(own_score))
+        for d, d_score in zip(self.decoys, self.decoy_scores, strict=True):
+            near = np.hypot(*(centres - (d[:2] + d[2:] / 2)).T) < 0.5 * d[2]
+            bar = np.where(near, np.maximum(bar, d_score), bar)
+        gain = np.asarray(scores, dtype=np.float64) - bar
+        return np.where(np.hypot(*(centres - own_c).T) > 0.5 * own_side, gain, -np.inf)
+
+    def remember(self, frame: Frame, t: np.ndarray, rng: np.random.Generator) -> None:
+        """A calm frame's scan: ``calm_probes`` boxes over the whole image at the estimate's
+        side (t (3,) metres), among them the decoys so far, the places found last time and a
+        jittered copy of each, scored with the estimate's own box. A probe whose ``gains``
+        exceed ``probe_margin`` is a place that looks more like the object than the estimate
+        and than anything remembered there: ``elsewhere`` (the frame counts as doubtful: the
+        filter can settle on a wrong place with a low alpha) and kept for the next frame's
+        probes. Of the others, the best ``calm_probes`` / 4 more than ``DECOY_AWAY`` sides
+        from the estimate become the decoys, with their scores (places that look like the
+        object while it is tracked elsewhere: a distractor, a patch of background)."""
+        n = self.config.calm_probes
+        if self.prober is None or n <= 0:
+            self._kept = np.zeros((0, 4))
+            self.elsewhere = False
+            return
+        m = max(n // 4, 1)
+        height, width = frame.rgb.shape[:2]
+        whole = (0.0, 0.0, float(width), float(height))
+        own_box, side = self._own_box(frame, t)
+        kept = np.concatenate([self.decoys[:m], self._kept[:m]])
+        grid = self.probe_boxes(whole, side, rng, max(n - 2 * len(kept), 1))
+        boxes = inside(np.concatenate([kept, jittered(kept, 1, rng), grid]), width, height)
+        own = self._own_boxes(own_box, rng, width, height)
+        both = probe_scores(
+            self.prober, frame, np.concatenate([own, boxes]), self.config.probe_score
+        )
+        own_score, scores = float(both[: len(own)].max()), both[len(own) :]
+        gain = self.gains(boxes, scores, own_box, own_score)
+        found = gain > self.config.probe_margin
+        self.elsewhere = bool(found.any())
+        self._kept = boxes[found][np.argsort(-gain[found])[:m]]
+        centres = boxes[:, :2] + boxes[:, 2:] / 2
+        away = np.hypot(*(centres - own_box[0, :2] - side / 2).T) > DECOY_AWAY * side
+        away &= ~found
+        order = np.argsort(-scores[away])[:m]
+        self.decoys, self.decoy_scores = boxes[away][order], scores[away][order]
+
     def probe(
         self, frame: Frame, region: Region, t: np.ndarray, rng: np.random.Generator
     ) -> Region:
-        """``region`` with its box moved to the best probe (the highest ``probe_scores`` of
-        ``probe_score``) and its area around that box. Per frame at most 1.5 ``probes`` boxes in
-        two passes: the best ``probes`` / 8 boxes of the previous probed frame and a jittered
-        copy of each (the object moves little between frames: the search goes on where it
-        left off) and ``probe_boxes`` for the rest of ``probes``, of the object's side at the
-        depth of the last frame that was not widened (its depth changes little while it is
-        lost, unlike the estimate's); then ``probes`` / 2 jittered copies of the best
-        (``jittered``). The best ``probes`` / 8 of both passes are kept. The estimate's own
-        box (at the estimate t (3,) metres) is scored with the first pass: ``elsewhere`` says
-        whether the best probe beats it more than half a side away from it."""
+        """``region`` with its box moved to the best probe when that probe takes over, else
+        the estimate's (not widened) region. Per frame at most 1.5 ``probes`` boxes in two
+        passes: the best ``probes`` / 8 boxes of the previous probed frame and a jittered copy
+        of each (the object moves little between frames: the search goes on where it left
+        off) and ``probe_boxes`` for the rest of ``probes``, of the object's side at the depth
+        of the last frame that was not widened (its depth changes little while it is lost,
+        unlike the estimate's); then ``probes`` / 2 jittered copies (``jittered``) of the
+        probe with the highest ``gains``. The estimate's own box (at the estimate t (3,)
+        metres) is scored with the first pass. Probes rank by ``gains``: their score less the
+        estimate box's and less the decoys' nearby (``remember``), so that a place that
+        already looked like the object while it was tracked elsewhere (under occlusion the
+        object is hidden and a distractor wins) does not take over; the best ``probes`` / 8
+        are kept. The best takes over (``elsewhere``) when its gain exceeds ``probe_margin``:
+        phi_cand draws around it, at its depth, with orientations from its crop."""
         assert self.prober is not None
         kind, n = self.config.probe_score, self.config.probes
         height, width = frame.rgb.shape[:2]
         whole = (0.0, 0.0, float(width), float(height))
         fx, extent = float(frame.K[0, 0]), self.prober.box_extent
-        own = fx * extent / max(float(t[2]), 1e-3)
-        u, v = project_points(np.asarray(t, dtype=np.float64)[None], frame.K)[0]
-        own_box = np.array([[u + 0.5 - own / 2, v + 0.5 - own / 2, own, own]])
+        own_box, _ = self._own_box(frame, t)
         kept = np.concatenate([self._kept, jittered(self._kept, 1, rng)])
         grid = self.probe_boxes(whole, fx * extent / self._z, rng, n - len(kept))
         coarse = inside(np.concatenate([kept, grid]), width, height)
-        both = probe_scores(self.prober, frame, np.concatenate([own_box, coarse]), kind)
-        own_score, coarse_scores = both[0], both[1:]
-        best = coarse[int(np.argmax(coarse_scores))]
+        own = self._own_boxes(own_box, rng, width, height)
+        both = probe_scores(self.prober, frame, np.concatenate([own, coarse]), kind)
+        own_score, coarse_scores = float(both[: len(own)].max()), both[len(own) :]
+        coarse_gains = self.gains(coarse, coarse_scores, own_box, own_score)
+        best = coarse[int(np.argmax(coarse_gains))]
         fine = inside(jittered(best[None], max(n // 2, 1), rng), width, height)
+        fine_scores = probe_scores(self.prober, frame, fine, kind)
         boxes = np.concatenate([coarse, fine])
-        scores = np.concatenate([coarse_scores, probe_scores(self.prober, frame, fine, kind)])
-        order = np.argsort(-scores)
+        gain = np.concatenate([coarse_gains, self.gains(fine, fine_scores, own_box, own_score)])
+        order = np.argsort(-gain)
         self._kept = boxes[order[: max(n // 8, 1)]]
+        self.elsewhere = bool(gain[order[0]] > self.config.probe_margin)
+        if not self.elsewhere:  # phi_cand draws as on a calm frame; the record shows the scan
+            near = clip_box(scaled_box(region.box, 1.0 + self.config.margin), width, height)
+            return replace(region, area=near or whole, window=whole, scale=1.0, cue=True)
         box = tuple(float(v) for v in boxes[order[0]])
-        off = np.hypot(box[0] + box[2] / 2 - u - 0.5, box[1] + box[3] / 2 - v - 0.5)
-        self.elsewhere = bool(scores[order[0]] > own_score and off > 0.5 * own)
         area = clip_box(scaled_box(box, 1.0 + self.config.margin), width, height)
-        return Region(box, area or whole, whole, region.scale)
+        return Region(box, area or whole, whole, region.scale, probed=True)
 
     def doubtful(self, result: TrackResult, n_particles: int) -> bool | None:
         """Whether a frame's result shows doubt (module docstring); None for a frame that was
@@ -311,7 +415,10 @@ class SearchRegion:
         if region is not None and region.scale > 1.0 and probing:
             region = self.probe(frame, region, estimate[1], rng)
         else:
-            self._kept = np.zeros((0, 4))
-            self.elsewhere = False
             self._z = max(float(estimate[1][2]), 1e-3)
+            if region is not None and probing:
+                self.remember(frame, estimate[1], rng)
+            else:
+                self._kept = np.zeros((0, 4))
+                self.elsewhere = False
         return replace(frame, box=None, region=region)

@@ -17,13 +17,16 @@ class Region:
     """A search region of a frame without a detection (chpf.tracking.search_region).
 
     box (x, y, w, h) pixels: where the object is looked for, at its projected size: the model's
-    projected bounding box at the current estimate, or, once the region is widened, the
-    best-matching probe box in the window (phi_cand's depth rule and box-centre look-up read
-    it as they read a detection's box). area (x, y, w, h) pixels: where phi_cand's candidates
-    lie: the window, or around the best probe. window (x, y, w, h) pixels: the part of the
+    projected bounding box at the current estimate, or, once the region is widened, the probe
+    box that took over (chpf.tracking.search_region; phi_cand's depth rule and box-centre
+    look-up read it as they read a detection's box). area (x, y, w, h) pixels: where
+    phi_cand's candidates lie: the window, around the probe that took over, or around the
+    estimate's box when no probe did. window (x, y, w, h) pixels: the part of the
     image searched: the estimate's box enlarged by the margin, times ``scale``, clipped.
-    scale >= 1: the widening (1 = not widened). cue: the box's crop may inform phi_cand's
+    scale >= 1: the widening phi_cand draws in (1 = not widened, or widened but no probe took
+    over: phi_cand draws around the estimate). cue: the box's crop may inform phi_cand's
     orientations and E2E's single-frame estimate (False in a widened window without probes).
+    probed: the box is a probe that took over (the Rao-Blackwellised filters then draw there).
     """
 
     box: Box
@@ -31,6 +34,7 @@ class Region:
     window: Box
     scale: float = 1.0
     cue: bool = True
+    probed: bool = False
 
 
 @dataclass

@@ -19,6 +19,7 @@ from chpf.tracking import (
 from chpf.tracking.chrbpf import CHRBPF
 from chpf.tracking.rotation_diffusion import grid_spacing, neighbour_matrix, neighbour_table
 from chpf.tracking.strategies import CHPF, CHPFConfig
+from chpf.tracking.types import Region
 
 GRID = RotationGrid.uniform(2048)
 
@@ -88,6 +89,56 @@ def test_poserbpf_resets_when_similarity_drops(sequence):
     _, res = track(filt, oracle, sequence, range(20, 22))
     assert res[0].alpha == 1.0 and filt.n_resets == resets + 2
     np.testing.assert_allclose(filt.P, 1.0 / len(GRID))  # all particles redrawn, uniform
+
+
+def _searched(seq, i, scale):
+    """Frame i of ``seq`` without a detection, with a search region around the object whose
+    window is widened ``scale`` times (its area: the object's box enlarged 3 times; widened:
+    as when a probe took over there)."""
+    box = seq.box(i)
+    cx, cy = box[0] + box[2] / 2, box[1] + box[3] / 2
+    area = (cx - 1.5 * box[2], cy - 1.5 * box[3], 3 * box[2], 3 * box[3])
+    region = Region(box, area, area, scale, cue=scale <= 1.0, probed=scale > 1.0)
+    return Frame(seq.rgb, None, seq.K, None, region)
+
+
+def test_a_lost_poserbpf_draws_from_a_widened_window_without_its_reset_and_finds_it(sequence):
+    """PoseRBPF draws from phi_cand only on its reset, which a lost filter's similarity need
+    not trigger (here never: reset_threshold -1): a widened search window (the likelihood said
+    lost for ``patience`` frames) makes it draw search_fraction of N, joining the belief."""
+    oracle = OracleLikelihood(grid=GRID)
+    filt = make_rbpf(oracle, reset_threshold=-1.0)
+    track(filt, oracle, sequence, range(10))
+    filt.set_particles(filt.t + np.array([0.15, 0.0, 0.0]))  # lost: 15 cm off, ~60 px
+    oracle.set_pose(sequence.R[10], sequence.t[10])
+    calm = filt.step(_searched(sequence, 10, 1.0))  # not widened: nothing drawn
+    assert calm.alpha == 0.0 and len(filt.t) == 50
+    errs = []
+    for i in range(11, 19):
+        oracle.set_pose(sequence.R[i], sequence.t[i])
+        frame = _searched(sequence, i, 3.0)
+        r = filt.step(frame)
+        assert r.alpha == 0.5
+        if i == 11:  # drawn in the window, joining the whole belief
+            assert len(filt.t) == 75 and filt.fresh[50:].all() and not filt.fresh[:50].any()
+            uv = filt.t[50:, :2] / filt.t[50:, 2:] * sequence.K[0, 0] + sequence.K[:2, 2]
+            x, y, w, h = frame.region.area
+            assert np.all((uv >= (x, y)) & (uv <= (x + w, y + h)))
+        errs.append(np.linalg.norm(r.t - sequence.t[i]))
+    assert errs[0] > 0.1 and max(errs[-3:]) < 0.02, errs
+    off = make_rbpf(OracleLikelihood(grid=GRID), reset_threshold=-1.0, search_fraction=0.0)
+    track(off, oracle, sequence, range(10, 12))
+    assert off.step(_searched(sequence, 12, 3.0)).alpha == 0.0  # 0: PoseRBPF's own rule
+
+
+def test_chrbpf_draws_at_least_search_fraction_from_a_widened_window(sequence):
+    oracle = OracleLikelihood(grid=GRID)
+    filt = make_chrbpf(oracle, keep_belief=False)
+    _, res = track(filt, oracle, sequence, range(15))
+    assert res[-1].alpha < 0.3  # tracking: its rule draws few
+    oracle.set_pose(sequence.R[15], sequence.t[15])
+    r = filt.step(_searched(sequence, 15, 3.0))
+    assert r.alpha == 0.5 and len(filt.t) == 75  # raised, and the draws join the belief
 
 
 def test_poserbpf_same_seed_same_poses(sequence):

@@ -172,7 +172,9 @@ def _widened(search, frame, est, rng):
 
 def test_a_widened_window_is_probed_and_its_best_box_becomes_phi_cands():
     prober = PeakProber((250.0, 60.0), 40.0)  # the object: far from the estimate
-    cfg = SearchConfig(patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0)
+    cfg = SearchConfig(
+        patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0, calm_probes=0
+    )
     search = SearchRegion(cfg, CUBE, prober)
     est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # a 32 px box around (130, 135)
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
@@ -195,10 +197,12 @@ def test_a_widened_window_is_probed_and_its_best_box_becomes_phi_cands():
 
 def test_the_best_probes_carry_over_widened_frames_so_a_narrow_peak_is_found():
     # a peak 0.1 of the side wide: one frame's 96 probes rarely land in it; carried over and
-    # refined from frame to frame they do. A calm frame forgets them.
+    # refined from frame to frame they do. A calm frame without its own scan forgets them.
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))
-    cfg = SearchConfig(patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0)
+    cfg = SearchConfig(
+        patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0, calm_probes=0
+    )
     found = []
     for seed in range(5):
         search = SearchRegion(cfg, CUBE, PeakProber((250.0, 60.0), 40.0, width=0.1))
@@ -231,6 +235,100 @@ def test_the_window_stays_widened_while_a_probe_elsewhere_beats_the_estimates_bo
     assert not search.elsewhere
     search.update(CALM, 50)
     assert search.scale == scale / 2.0 and search.streak == 0
+
+
+class Peaks:
+    """A likelihood whose probe score (the cosine kind) is ``floor`` (background) but near
+    the peaks ``(centre, side, height)``: height less two per side off centre and one per unit
+    of log size (the real scores' peaks are narrower still: about 0.1 side)."""
+
+    box_extent = 0.1
+
+    def __init__(self, peaks, floor=0.5):
+        self.peaks, self.floor, self.calls = peaks, floor, 0
+
+    def codebook_scores(self, frame, t):
+        self.calls += 1
+        uv = t[:, :2] / t[:, 2:] * K[0, 0] + K[:2, 2]
+        side = K[0, 0] * self.box_extent / t[:, 2]
+        cos = np.full(len(t), self.floor)
+        for centre, s, height in self.peaks:
+            off = np.linalg.norm(uv + 0.5 - np.array(centre), axis=1) / s
+            cos = np.maximum(cos, height - 2.0 * off - np.abs(np.log(side / s)))
+        return CodebookScores(cos=cos[:, None])
+
+
+def test_a_place_that_looked_like_the_object_while_it_was_tracked_does_not_take_over():
+    """Calm frames remember the places elsewhere that look like the object (a distractor);
+    when the filter doubts (the object hidden), a probe there scores no better than
+    remembered and phi_cand stays at the estimate's box; a new peak elsewhere (the object
+    after a jump) beats the estimate's box and the remembered places and takes over."""
+    est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # a 30 px box around (130, 135)
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
+    cfg = SearchConfig(
+        patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=1.5,
+        probe_margin=0.2, calm_probes=64,
+    )  # fmt: skip
+    distractor = ((250.0, 60.0), 36.0, 1.4)
+    search = SearchRegion(cfg, CUBE, Peaks([distractor]))
+    rng = np.random.default_rng(0)
+    for _ in range(12):  # calm frames
+        region = search.frame(frame, est, rng).region
+        assert region.scale == 1.0
+    assert search.prober.calls == 12  # one pass of calm_probes per calm frame
+    d = search.decoys[0]
+    assert np.hypot(d[0] + d[2] / 2 - 250.0, d[1] + d[3] / 2 - 60.0) < 8.0
+    assert search.decoy_scores[0] > 1.2
+    own = search.region(*est, K, W, H)
+    for _ in range(4):  # the object hidden: doubt, the window widens, the distractor waits
+        wide = _widened(search, frame, est, rng)
+        assert wide.window == (0.0, 0.0, float(W), float(H)) and not search.elsewhere
+        assert wide.box == own.box and wide.area == own.area and wide.cue and wide.scale == 1
+        assert not wide.probed  # the Rao-Blackwellised filters draw nothing there
+    search.prober = Peaks([distractor, ((60.0, 60.0), 36.0, 1.5)])  # the object, elsewhere
+    for _ in range(6):  # the probes carry over widened frames until they land on it
+        wide = _widened(search, frame, est, rng)
+        if search.elsewhere:
+            break
+    assert search.elsewhere and wide.probed
+    assert np.hypot(wide.box[0] + wide.box[2] / 2 - 60.0, wide.box[1] + wide.box[3] / 2 - 60.0) < 12
+    search.decoys, search.decoy_scores = np.zeros((0, 4)), np.zeros(0)  # nothing remembered:
+    search.prober = Peaks([distractor])  # the distractor beats the estimate's box: it wins
+    for _ in range(6):
+        wide = _widened(search, frame, est, rng)
+        if search.elsewhere:
+            break
+    assert search.elsewhere and abs(wide.box[0] + wide.box[2] / 2 - 250.0) < 8
+
+
+def test_a_calm_frame_whose_scan_finds_a_better_place_elsewhere_widens_the_window():
+    """CH-PF can settle on a wrong place with a calm alpha: a calm frame's scan that finds a
+    place scoring above the estimate's box (and above anything remembered there) by the
+    margin counts the frame as doubtful, so the window widens after ``patience`` frames and
+    the probes take the place over."""
+    est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # on background (the floor)
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
+    cfg = SearchConfig(
+        patience=2, widen=2.0, probes=64, probe_score="cosine", probe_sizes=1.5,
+        probe_margin=0.2, calm_probes=64,
+    )  # fmt: skip
+    search = SearchRegion(cfg, CUBE, Peaks([((60.0, 60.0), 36.0, 1.5)]))
+    rng = np.random.default_rng(0)
+    scales = []
+    for _ in range(12):
+        region = search.frame(frame, est, rng).region
+        search.update(CALM, 50)  # the filter's alpha is calm throughout
+        scales.append(region.scale)
+        if region.scale > 1.0 and search.elsewhere:
+            break
+    assert scales[0] == 1.0 and scales[-1] > 1.0  # widened without a doubtful alpha
+    c = np.array(region.box[:2]) + np.array(region.box[2:]) / 2
+    assert np.hypot(*(c - (60.0, 60.0))) < 12.0  # phi_cand draws at the place found
+    quiet = SearchRegion(cfg, CUBE, Peaks([]))  # nothing better anywhere: calm stays calm
+    for _ in range(6):
+        assert quiet.frame(frame, est, rng).region.scale == 1.0
+        quiet.update(CALM, 50)
+        assert not quiet.elsewhere
 
 
 def test_probes_lie_inside_the_image():
