@@ -329,3 +329,15 @@ def test_near_poses_lie_within_a_tenth_of_the_diameter() -> None:
         assert Rn.shape == (NEAR, 3, 3) and tn.shape == (NEAR, 3)
         errs = [add(pts, Rn[i], tn[i], R, t) for i in range(NEAR)]
         assert 0.0 < min(errs) and max(errs) < 0.1 * d
+
+
+def test_every_shipped_suite_loads_under_its_own_name() -> None:
+    """Each YAML in bench/suites is a valid suite whose name is its file's (``--suite dev2``);
+    the development suites draw other sequences than the reported default suite."""
+    from bench.suite import SUITES_DIR, load_suite
+
+    suites = {p.stem: load_suite(p.stem) for p in sorted(SUITES_DIR.glob("*.yaml"))}
+    assert {"default", "dev", "dev2", "quick"} <= set(suites)
+    assert all(s.name == stem for stem, s in suites.items())
+    reported = suites["default"].sequences.seed
+    assert reported not in {suites["dev"].sequences.seed, suites["dev2"].sequences.seed}
