@@ -70,18 +70,20 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     m00, m01, m02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
     m10, m11, m12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
     m20, m21, m22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
-    # Candidate k has 4*q_k^2 as its pivot (q_0 = w); each row is proportional to q.
-    cands = np.stack(
-        [
-            np.stack([1.0 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01], axis=-1),
-            np.stack([m21 - m12, 1.0 + m00 - m11 - m22, m01 + m10, m02 + m20], axis=-1),
-            np.stack([m02 - m20, m01 + m10, 1.0 - m00 + m11 - m22, m12 + m21], axis=-1),
-            np.stack([m10 - m01, m02 + m20, m12 + m21, 1.0 - m00 - m11 + m22], axis=-1),
-        ],
-        axis=-2,
-    )  # (..., 4, 4)
-    pivots = np.stack([cands[..., k, k] for k in range(4)], axis=-1)
-    best = np.argmax(pivots, axis=-1)
+    # Candidate k (row k, symmetric) has 4*q_k^2 as its pivot (q_0 = w); each row is
+    # proportional to q.
+    cands = np.empty((*R.shape[:-2], 4, 4))
+    cands[..., 0, 0] = 1.0 + m00 + m11 + m22
+    cands[..., 1, 1] = 1.0 + m00 - m11 - m22
+    cands[..., 2, 2] = 1.0 - m00 + m11 - m22
+    cands[..., 3, 3] = 1.0 - m00 - m11 + m22
+    cands[..., 0, 1] = cands[..., 1, 0] = m21 - m12
+    cands[..., 0, 2] = cands[..., 2, 0] = m02 - m20
+    cands[..., 0, 3] = cands[..., 3, 0] = m10 - m01
+    cands[..., 1, 2] = cands[..., 2, 1] = m01 + m10
+    cands[..., 1, 3] = cands[..., 3, 1] = m02 + m20
+    cands[..., 2, 3] = cands[..., 3, 2] = m12 + m21
+    best = np.argmax(np.diagonal(cands, axis1=-2, axis2=-1), axis=-1)
     q = np.take_along_axis(cands, best[..., None, None], axis=-2)[..., 0, :]
     return _canonical(q)
 
@@ -253,6 +255,10 @@ def ray_rotation(t: np.ndarray) -> np.ndarray:
     """
     t = np.asarray(t, dtype=np.float64)
     norm = np.linalg.norm(t, axis=-1, keepdims=True)
+    if np.all(norm > 0.0):
+        d = t / norm
+        if np.all(d[..., 2] >= 0.0):  # the usual case: the same numbers, fewer numpy calls
+            return _forward_ray_rotation(d)
     zero = norm[..., 0] == 0.0
     d = np.where(norm > 0.0, t / np.where(norm > 0.0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
     x, y, z = np.moveaxis(d, -1, 0)
@@ -271,6 +277,25 @@ def ray_rotation(t: np.ndarray) -> np.ndarray:
     flip = np.diag([1.0, -1.0, -1.0])
     R = np.where(opp[..., None, None], flip, R)
     return np.where(zero[..., None, None], np.eye(3), R)
+
+
+def _forward_ray_rotation(d: np.ndarray) -> np.ndarray:
+    """``ray_rotation`` of unit directions d (..., 3) with z >= 0: its formula, filled in place
+    of the general case's stack and selections (bit for bit the same result)."""
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    inv = 1.0 / (1.0 + z)
+    xy = -x * y * inv
+    R = np.empty((*d.shape[:-1], 3, 3))
+    R[..., 0, 0] = 1.0 - x * x * inv
+    R[..., 0, 1] = xy
+    R[..., 0, 2] = x
+    R[..., 1, 0] = xy
+    R[..., 1, 1] = 1.0 - y * y * inv
+    R[..., 1, 2] = y
+    R[..., 2, 0] = -x
+    R[..., 2, 1] = -y
+    R[..., 2, 2] = z
+    return R
 
 
 def egocentric_to_allocentric(R: np.ndarray, t: np.ndarray) -> np.ndarray:

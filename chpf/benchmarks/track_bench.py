@@ -7,8 +7,9 @@ Frames: the bundle's object (a built-in one) rendered at 640x480 (f = 600 px) mo
 of the camera, with its visible box as the detection (a random-noise image with a fixed box
 when the object is not built-in). Each method's Tracker (RGB by default) is warmed up, then
 ``Tracker.step`` (image in, pose out) is timed. Columns: fps, total ms, ms of the stages, the
-network ms (encoders + classifier head) and the share of the frame spent outside the networks
-(crops, look-ups, motion model, resampling, estimate and Python overhead). Several values of
+network ms (encoders + classifier head), the share of the frame spent outside the networks
+(crops, look-ups, motion model, resampling, estimate and Python overhead) and the process's
+resident memory after the row (MB; the peak of the whole run is printed last). Several values of
 ``--n-particles`` or ``--objects`` (trackers stepping the same frames in turn, as for several
 tracked objects; the row's times are per frame, all objects together) give one row each.
 ``--long-run F`` steps the first method's tracker over F frames (the rendered ones in a loop)
@@ -109,6 +110,7 @@ def bench_method(trackers: list[Tracker], frames, n_frames: int, warmup: int) ->
     out["fps"] = 1000.0 / wall
     out["network"] = sum(out.get(s, 0.0) for s in NETWORK_STAGES)
     out["non_network_share"] = (wall - out["network"]) / wall
+    out["rss_mb"] = resident_mb()
     return out
 
 
@@ -119,6 +121,16 @@ def resident_mb() -> float:
     except (OSError, IndexError, ValueError):
         return float("nan")
     return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def peak_resident_mb() -> float:
+    """This process's peak resident memory so far (MB; nan where getrusage cannot say)."""
+    try:
+        import resource
+    except ImportError:  # Windows has no resource module
+        return float("nan")
+    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # kB on Linux
+    return kb * 1024 / 1e6
 
 
 def long_run(tracker: Tracker, frames, n_frames: int) -> list[tuple[int, float, float]]:
@@ -140,14 +152,14 @@ def long_run(tracker: Tracker, frames, n_frames: int) -> list[tuple[int, float, 
 def format_table(rows: dict[str, dict[str, float]]) -> str:
     head = f"{'run':<22}{'fps':>7}{'ms':>7}{'med ms':>8}{'p90 ms':>8}"
     head += "".join(f"{s[:9]:>10}" for s in STAGES)
-    head += f"{'network':>9}{'non-net':>9}"
+    head += f"{'network':>9}{'non-net':>9}{'RSS MB':>8}"
     lines = [head, "-" * len(head)]
     for m, r in rows.items():
         cells = "".join(f"{r[s]:>10.2f}" if s in r else f"{'-':>10}" for s in STAGES)
         lines.append(
             f"{m:<22}{r['fps']:>7.1f}{r['wall']:>7.1f}{r['median']:>8.1f}{r['p90']:>8.1f}"
             f"{cells}{r['network']:>9.2f}"
-            f"{r['non_network_share']:>9.0%}"
+            f"{r['non_network_share']:>9.0%}{r.get('rss_mb', float('nan')):>8.0f}"
         )
     return "\n".join(lines)
 
@@ -198,7 +210,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(
         "fps and ms: mean frame time; med / p90: median and 90th percentile frame time; stages: "
-        "mean ms; 'non-net' = share of the frame outside the networks"
+        "mean ms; 'non-net' = share of the frame outside the networks; RSS MB: resident memory "
+        "after the row"
     )
     print(format_table(rows))
     if args.long_run > 0:
@@ -207,6 +220,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"long run, {methods[0]} N={counts[0]}: frame, resident MB, ms (last 50 frames)")
         for j, mb, ms in long_run(tracker, frames, args.long_run):
             print(f"{j:>8} {mb:>10.0f} {ms:>8.1f}")
+    print(f"peak resident memory of this run: {peak_resident_mb():.0f} MB")
     return 0
 
 

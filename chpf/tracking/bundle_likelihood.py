@@ -49,7 +49,7 @@ import numpy as np
 from chpf.bundle import Bundle
 from chpf.crops import CropSpec, crop_affines, extract_crops
 from chpf.errors import ConfigError
-from chpf.geometry import allocentric_to_egocentric, egocentric_to_allocentric
+from chpf.geometry import allocentric_to_egocentric, ray_rotation
 from chpf.tracking.candidates import box_translations, valid_box
 from chpf.tracking.config import BOX_SHAPES, C_MODES, L_FROM_COS
 from chpf.tracking.depth_scores import depth_scores
@@ -140,6 +140,10 @@ class BundleLikelihood:
         self.c_box = c_box
         self.c_box_shape = c_box_shape
         self._outline: np.ndarray | None = None  # ``outline``, made on first use
+        # box_centre_cosines' crop rides along in score()'s encoder pass once it has been
+        # asked for: (crop (S,S,3), its AE embedding (1,E)) of the last score(), or None
+        self._cue_in_batch = False
+        self._cue: tuple[np.ndarray, np.ndarray] | None = None
         self.neighbours = (
             neighbour_table(self.grid, refine_neighbours) if refine_neighbours > 1 else None
         )
@@ -200,7 +204,12 @@ class BundleLikelihood:
         """Scores of N hypotheses R (N,3,3), t (N,3) metres (see module docstring)."""
         ms: dict[str, float] = {}
         t = np.asarray(t, dtype=np.float64)
-        crops, emb = self._crops_and_embed(frame, t, ms)
+        t_cue = self._cue_translation(frame) if self._cue_in_batch else None
+        crops, emb = self._crops_and_embed(frame, t if t_cue is None else np.vstack([t, t_cue]), ms)
+        self._cue = None
+        if t_cue is not None:  # one encoder pass for both (box_centre_cosines)
+            self._cue = (crops[-1].copy(), emb[-1:].copy())
+            crops, emb = crops[:-1], emb[:-1]
         need_c = self.c_mode in ("learned", "both")
         if need_c and not self.bundle.shares_encoder:
             t0 = time.perf_counter()
@@ -210,13 +219,14 @@ class BundleLikelihood:
             ch_emb = emb
 
         t0 = time.perf_counter()
-        R_allo = egocentric_to_allocentric(R, t)
+        R_ray = ray_rotation(t)  # once for both directions (egocentric_to_allocentric's)
+        R_allo = np.swapaxes(R_ray, -1, -2) @ np.asarray(R, dtype=np.float64)
         idx = self.bundle.nearest(R_allo)
         R_moved = None
         if self.neighbours is None:
             c = self.bundle.cosine(emb, idx).astype(np.float64)
         else:
-            idx, c, R_moved = self._search(emb, idx, R_allo, t)
+            idx, c, R_moved = self._search(emb, idx, R_allo, R_ray)
         behind = t[:, 2] < self.z_min
         c[behind] = -1.0
         L = likelihood_from_cosine(c, self.l_from_cos)
@@ -248,11 +258,12 @@ class BundleLikelihood:
         return Scores(L=L, w=w, C=C, stage_ms=ms, R=R_moved)
 
     def _search(
-        self, emb: np.ndarray, idx: np.ndarray, R_allo: np.ndarray, t: np.ndarray
+        self, emb: np.ndarray, idx: np.ndarray, R_allo: np.ndarray, R_ray: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The orientation search (module docstring, item 7) for embeddings emb (N,E) of
-        particles at entries idx (N,), allocentric R_allo (N,3,3), t (N,3): the best entries
-        (N,), their cosines (N,) and the moved egocentric orientations (N,3,3)."""
+        particles at entries idx (N,), allocentric R_allo (N,3,3), ray rotations R_ray (N,3,3)
+        of their t (chpf.geometry.ray_rotation): the best entries (N,), their cosines (N,) and
+        the moved egocentric orientations (N,3,3)."""
         assert self.neighbours is not None
         nb = self.neighbours[idx]  # (N,k), the entry itself first
         cos = np.einsum("ne,nke->nk", emb, self.bundle.ae_codebook[nb]).astype(np.float64)
@@ -261,7 +272,7 @@ class BundleLikelihood:
         best = nb[rows, j]
         G = self.grid.rotations
         moved = G[best] @ np.swapaxes(G[idx], -1, -2) @ R_allo
-        return best, cos[rows, j], allocentric_to_egocentric(moved, t)
+        return best, cos[rows, j], R_ray @ moved  # allocentric_to_egocentric(moved, t)
 
     @property
     def outline(self) -> np.ndarray:
@@ -326,11 +337,26 @@ class BundleLikelihood:
         """Cosines (K,) of the crop at the detection box's centre with the whole codebook and
         that crop's translation (3,) metres (depth guessed from the box size and the codebook's
         median object extent); the box is ``frame.cue_box()``; None without one."""
+        t0 = self._cue_translation(frame)
+        if t0 is None:
+            return None
+        self._cue_in_batch, cue, self._cue = True, self._cue, None
+        if cue is not None:  # the crop score() encoded with the particles', when it is this one
+            crop = extract_crops(
+                frame.rgb, self._affines(frame, t0[None], self.spec), cue[0].shape[0]
+            )
+            if np.array_equal(crop[0], cue[0]):
+                cos = (cue[1] @ self._codebook_t)[0]
+                return (np.full_like(cos, -1.0) if t0[2] < self.z_min else cos), t0
+        return self.codebook_scores(frame, t0[None]).cos[0], t0
+
+    def _cue_translation(self, frame: Frame) -> np.ndarray | None:
+        """Translation (3,) metres of the crop at ``frame.cue_box()``'s centre (depth guessed
+        from the box size and the codebook's median object extent), None without a box."""
         box = valid_box(frame.cue_box())
         if box is None:
             return None
-        t0 = box_translations(np.array([box]), frame.K, self.box_extent)
-        return self.codebook_scores(frame, t0).cos[0], t0[0]
+        return box_translations(np.array([box]), frame.K, self.box_extent)[0]
 
     # ------------------------------------------------------------------ MCL + E2E
     def single_frame_estimate(self, frame: Frame) -> tuple[np.ndarray, np.ndarray] | None:

@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from chpf.crops import CropBatch, CropSpec, crop_affines, extract_crops, render_crops
+from chpf.crops import (
+    CropBatch,
+    CropSpec,
+    _via_rgba,
+    crop_affines,
+    extract_crops,
+    render_crops,
+)
 from chpf.errors import ConfigError
 from chpf.objects import builtin_object
 from chpf.render import Renderer
@@ -197,3 +204,37 @@ def test_extract_crops_uses_inverse_map_convention():
     A = np.array([[[1.0, 0.0, 5.0], [0.0, 1.0, 3.0]]])
     crop = extract_crops(image, A, 10, interpolation=cv2.INTER_NEAREST)[0]
     np.testing.assert_array_equal(crop, image[3:13, 5:15])
+
+
+def test_many_rgb_crops_are_the_bytes_of_one_rgb_warp_per_crop():
+    """Many crops of a uint8 RGB image are warped as RGBA (``_via_rgba``): the same bytes as
+    one three-channel warpAffine per crop, bilinear or nearest, inside, across and outside the
+    image (border value), sheared, or with a non-finite affine (all border)."""
+    rng = np.random.default_rng(3)
+    h, w, n, s = 120, 160, 40, 32
+    image = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    A = np.zeros((n, 2, 3))
+    A[:, 0, 0] = rng.uniform(0.2, 6.0, n)
+    A[:, 1, 1] = A[:, 0, 0] * rng.uniform(0.8, 1.2, n)
+    A[:, 0, 2] = rng.uniform(-w, 2 * w, n)
+    A[:, 1, 2] = rng.uniform(-h, 2 * h, n)
+    A[::5, 0, 1], A[::5, 1, 0] = 0.3, -0.2
+    A[7, 0, 2] = np.nan
+    assert _via_rgba(image, n, s) and not _via_rgba(image, 1, 8)
+    assert not _via_rgba(image[..., 0], n, s) and not _via_rgba(image.astype(np.float32), n, s)
+    for interpolation in (cv2.INTER_LINEAR, cv2.INTER_NEAREST):
+        for border in (0, 7):
+            crops = extract_crops(image, A, s, interpolation, border)
+            want = np.full((n, s, s, 3), border, np.uint8)
+            for k in range(n):
+                if k != 7:
+                    want[k] = cv2.warpAffine(
+                        image,
+                        A[k],
+                        (s, s),
+                        flags=interpolation | cv2.WARP_INVERSE_MAP,
+                        borderMode=cv2.BORDER_CONSTANT,
+                        borderValue=(border,) * 3,
+                    )
+            assert crops.shape == want.shape and crops.dtype == np.uint8
+            np.testing.assert_array_equal(crops, want)

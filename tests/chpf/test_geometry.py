@@ -314,6 +314,23 @@ def test_ray_rotation_edge_cases():
     assert geo.ray_rotation(np.array([0.1, 0.2, 1.0])).shape == (3, 3)
 
 
+def test_ray_rotation_forward_path_is_the_general_formula_bit_for_bit():
+    """Rays with z >= 0 take a shorter path (``_forward_ray_rotation``); a batch holding one
+    ray behind the camera takes the general one: the shared rows are the same bytes."""
+    rng = _rng(24)
+    t = rng.standard_normal((300, 3)) * 10.0 ** rng.uniform(-4, 2, (300, 1))
+    t[:, 2] = np.abs(t[:, 2])
+    t[0, 2] = 0.0  # in the image plane, still z >= 0
+    t[1] = [0.0, 0.0, 3.0]
+    forward = geo.ray_rotation(t)
+    general = geo.ray_rotation(np.vstack([t, [[0.1, 0.0, -1.0]]]))[:-1]
+    np.testing.assert_array_equal(forward, general)
+    np.testing.assert_array_equal(
+        forward, geo._forward_ray_rotation(t / np.linalg.norm(t, axis=1)[:, None])
+    )
+    _assert_rotations(forward, atol=1e-12)
+
+
 def test_allocentric_egocentric_round_trip():
     rng = _rng(22)
     R = geo.random_rotations(100, rng)

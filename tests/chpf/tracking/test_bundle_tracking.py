@@ -220,6 +220,44 @@ def test_single_frame_estimate_from_the_box(bundle, rendered_sequence):
     assert like.single_frame_estimate(Frame(seq.rgb[3], None, seq.K, None)) is None
 
 
+def test_box_centre_crop_rides_along_in_the_particles_encoder_pass(
+    bundle, rendered_sequence, monkeypatch
+):
+    """Once box_centre_cosines has been asked for, score() encodes the box-centre crop with
+    the particles' crops: the next box_centre_cosines of that frame gives the cosines of the
+    crop encoded alone without another encoder pass, and score()'s own results do not change;
+    a frame whose box-centre crop is another (another box, or the same image array changed in
+    place) is encoded afresh."""
+    seq = rendered_sequence
+    frame = Frame(seq.rgb[3].copy(), None, seq.K, seq.box(3))
+    x, y, w, h = seq.box(3)
+    other = Frame(frame.rgb, None, seq.K, (x + 7.0, y, w, h))
+    refilled = Frame(seq.rgb[10], None, seq.K, seq.box(3))
+    rng = np.random.default_rng(0)
+    R, t = _hypotheses(seq, 3, rng, n=8)["random"]
+    alone = [BundleLikelihood(bundle).box_centre_cosines(f) for f in (frame, other, refilled)]
+    plain = BundleLikelihood(bundle).score(frame, R, t)
+    like = BundleLikelihood(bundle)
+    like.box_centre_cosines(frame)
+    sizes: list[int] = []
+    embed = bundle.embed
+    monkeypatch.setattr(bundle, "embed", lambda crops: sizes.append(len(crops)) or embed(crops))
+    s = like.score(frame, R, t)
+    cos, t0 = like.box_centre_cosines(frame)
+    assert sizes == [9]
+    np.testing.assert_array_equal(cos, alone[0][0])
+    np.testing.assert_array_equal(t0, alone[0][1])
+    for a, b in ((s.L, plain.L), (s.w, plain.w), (s.C, plain.C)):
+        np.testing.assert_array_equal(a, b)
+    like.score(frame, R, t)
+    np.testing.assert_array_equal(like.box_centre_cosines(other)[0], alone[1][0])
+    assert sizes == [9, 9, 1]
+    like.score(frame, R, t)
+    frame.rgb[...] = seq.rgb[10]  # the caller's buffer refilled in place
+    np.testing.assert_array_equal(like.box_centre_cosines(frame)[0], alone[2][0])
+    assert sizes == [9, 9, 1, 9, 1]
+
+
 def _track(tracker, seq, modality="rgb", frames=None, collapse_at=None, wall=None):
     """Errors (T,3) against the truth, columns ADD-S and ADD in diameters and the rotation error
     in degrees (inf without an estimate), and the TrackResults of ``tracker`` on ``seq``; at

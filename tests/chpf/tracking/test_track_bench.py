@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import time
 
-from chpf.benchmarks.track_bench import bench_method, format_table, long_run
+from chpf.benchmarks.track_bench import (
+    bench_method,
+    format_table,
+    long_run,
+    peak_resident_mb,
+    resident_mb,
+)
 from chpf.bundle import Bundle
 from chpf.tracking.tracker import Tracker
 
@@ -23,8 +29,11 @@ def test_bench_method_times_every_frame_and_prints_a_row(template_bundle, render
     assert row["fps"] > 6 * 1000.0 / call_ms  # the 6 timed frames ran faster than the call
     assert row["network"] >= row["encode"] > 0 and 0 <= row["non_network_share"] < 1
     table = format_table({"chpf": row}).splitlines()
-    assert "med ms" in table[0] and "p90 ms" in table[0]
+    assert "med ms" in table[0] and "p90 ms" in table[0] and table[0].endswith("RSS MB")
     assert table[2].split()[:2] == ["chpf", f"{row['fps']:.1f}"]
+    # the row's resident memory, in its last column; the peak so far is at least today's
+    assert 10 < row["rss_mb"] <= peak_resident_mb() + 1 and resident_mb() <= peak_resident_mb() + 1
+    assert table[2].split()[-1] == f"{row['rss_mb']:.0f}"
 
 
 def test_several_objects_step_in_turn_and_the_long_run_reports_memory(
