@@ -102,13 +102,27 @@ def _train(c: Ctx, kind: str, cfg: str, data: str, run: str, steps: int, secs: i
     argv = [
         kind, "--config", str(ROOT / cfg), "--data.data_dir", str(c.d(data)),
         "--trainer.default_root_dir", str(c.d(run)), "--trainer.max_steps", str(steps),
-        "--trainer.max_time", _hms(secs), "--seed_everything", str(c.seed), *extra,
-        *c.trainer_args,
+        "--trainer.max_time", _hms(secs), "--model.lr_schedule_by_time", "true",
+        "--seed_everything", str(c.seed), *extra, *c.trainer_args,
     ]  # fmt: skip
     path = os.environ.get("PYTHONPATH")
     env = {**os.environ, "PYTHONPATH": str(ROOT) + (os.pathsep + path if path else "")}
     cmd = [sys.executable, "-m", "training.cli", *argv]
+    t0 = time.monotonic()
     _check(subprocess.run(cmd, env=env).returncode, f"chpf-train {kind}")
+    done = trained_steps(ckpt(c, run))
+    note = f"{done} steps in {(time.monotonic() - t0) / 60:.1f} min"
+    note += ", step cap" if done >= steps else ", to max_time"
+    prev = c.notes.get(f"train_{kind}")
+    c.notes[f"train_{kind}"] = f"{prev}; {note}" if prev else note
+    print(f"train_{kind}: {note}", flush=True)
+
+
+def trained_steps(path: Path) -> int:
+    """Optimiser steps of a Lightning checkpoint (its ``global_step``)."""
+    import torch
+
+    return int(torch.load(path, map_location="cpu", weights_only=False, mmap=True)["global_step"])
 
 
 def ckpt(c: Ctx, run: str) -> Path:

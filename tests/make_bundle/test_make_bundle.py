@@ -89,6 +89,28 @@ def test_plan_scales_with_the_measured_rates() -> None:
         make_plan(60)
 
 
+@pytest.mark.parametrize("budget", [600, 5400])
+def test_a_low_step_probe_does_not_cut_the_trainings_short(budget) -> None:
+    """The probe read 0.28 steps/s where the training ran 0.65 (README): the step caps leave
+    room for a few times the probed rate, and the trainings follow their max_time."""
+    from make_bundle.measure import Rates
+    from make_bundle.plan import AE_STEPS_PER_S, CH_STEPS_PER_S, make_plan
+
+    plan = make_plan(budget, rates=Rates(157.0, 0.28, "bf16-mixed"))
+    ch_rate = CH_STEPS_PER_S * 0.28 / AE_STEPS_PER_S
+    assert plan.ae_steps >= 3 * 0.28 * plan.ae_time_s
+    assert plan.ch_steps >= 3 * ch_rate * plan.ch_time_s
+
+
+def test_both_trainings_schedule_their_lr_by_time(made: Path) -> None:
+    for run in ("run_ae", "run_ch"):
+        cfgs = list((made.parent / "box.work" / run).rglob("config.yaml"))
+        assert cfgs, run
+        assert yaml.safe_load(cfgs[0].read_text())["model"]["lr_schedule_by_time"] is True
+    rep = (made / "report.md").read_text()
+    assert "4 steps in" in rep  # the stage table says how many steps each training ran
+
+
 @pytest.mark.parametrize("budget", [300, 600, 5400])
 @pytest.mark.parametrize("rates", [None, (500.0, 8.0), (60.0, 2.0)])
 def test_the_plan_accounts_for_every_stage_within_the_budget(budget, rates) -> None:
