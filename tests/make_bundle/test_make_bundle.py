@@ -146,6 +146,33 @@ def test_training_is_shortened_to_end_by_the_deadline(tmp_path: Path) -> None:
     assert ctx.train_seconds("train_ch", plan.ch_time_s) == TRAIN_MIN_S
 
 
+def test_training_takes_the_time_earlier_stages_saved(tmp_path: Path) -> None:
+    """The mug's pairs took 10.2 of their planned 20.1 minutes: the trainings get that time
+    (the autoencoder its share of the two, the classifier the rest), the margin stays free."""
+    import time
+
+    from make_bundle.plan import MARGIN, OVERHEAD_S, make_plan
+    from make_bundle.stages import Ctx
+
+    plan = make_plan(5400)
+    ctx = Ctx("box", "m", tmp_path, tmp_path, plan, 1, 0, [], False, tmp_path)
+    on_time = plan.after("train_ae") + OVERHEAD_S["train_ae"] + plan.ae_time_s
+    ctx.deadline = time.monotonic() + on_time + 5400 * MARGIN / 2
+    assert abs(ctx.train_seconds("train_ae", plan.ae_time_s) - plan.ae_time_s) <= 1  # on time
+    ctx.notes.clear()
+    ctx.deadline += 600  # ten minutes ahead
+    share = plan.ae_time_s / (plan.ae_time_s + plan.ch_time_s)
+    got = ctx.train_seconds("train_ae", plan.ae_time_s)
+    assert abs(got - (plan.ae_time_s + 600 * share)) <= 2
+    assert "ran early" in ctx.notes["train_ae"]
+    on_time = plan.after("train_ch") + OVERHEAD_S["train_ch"] + plan.ch_time_s
+    ctx.deadline = time.monotonic() + on_time + 5400 * MARGIN / 2 + 300
+    assert abs(ctx.train_seconds("train_ch", plan.ch_time_s) - (plan.ch_time_s + 300)) <= 2
+    tiny = Ctx("box", "m", tmp_path, tmp_path, make_plan(300, "tiny"), 1, 0, [], False, tmp_path)
+    tiny.deadline = time.monotonic() + 10_000
+    assert tiny.train_seconds("train_ae", 60) == 60  # the tiny preset: as planned
+
+
 def test_an_interrupted_stage_restarts_cleanly(made: Path, capsys) -> None:
     work = made.parent / "box.work"
     (work / "done" / "track.json").unlink()  # as if killed during tracking
