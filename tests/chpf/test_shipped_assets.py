@@ -11,7 +11,7 @@ from chpf.bop import SEQUENCES_INFO
 from chpf.bundle import Bundle
 from chpf.tracking.demo import ASSETS, demo_dataset, shipped_bundles
 
-MAX_BUNDLE_BYTES = 25 * 1024 * 1024
+MAX_BUNDLE_BYTES = 25_000_000  # 25 MB
 
 
 def test_the_box_is_shipped_and_first() -> None:
@@ -23,7 +23,7 @@ def test_the_box_is_shipped_and_first() -> None:
 def test_each_shipped_bundle_loads_fits_and_has_its_demo(name: str) -> None:
     path = shipped_bundles()[name]
     size = sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
-    assert size <= MAX_BUNDLE_BYTES, f"{name}: {size / 2**20:.1f} MB"
+    assert size <= MAX_BUNDLE_BYTES, f"{name}: {size / 1e6:.1f} MB"
     bundle = Bundle.load(path)
     assert bundle.obj_info.name == name
     root = demo_dataset(bundle)  # BundleError if the demo is missing or of another obj_id
