@@ -62,7 +62,11 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="build the sequences, run the jobs, write the report")
     r.add_argument("--out", required=True, type=Path, help="output folder (resumable)")
     r.add_argument("--suite", default="default", help="default | dev | quick | a suite YAML file")
-    r.add_argument("--bundles", type=_items, help="bundle folders (shipped: the shipped ones)")
+    r.add_argument(
+        "--bundles",
+        type=_items,
+        help="bundle folders (shipped: the shipped ones; box, mug: one shipped bundle)",
+    )
     r.add_argument("--methods", type=_items, help="registered methods or paper")
     r.add_argument("--seeds", type=_items, help="filter seeds, e.g. 0,1,2")
     r.add_argument("--modality", type=_items, help="rgb, rgbd or rgb,rgbd")

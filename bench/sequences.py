@@ -23,7 +23,7 @@ from chpf.errors import BundleError
 from chpf.hashing import sha256_bytes
 from chpf.objects import BUILTIN_OBJECTS, get_object, object_fingerprint
 from chpf.outdir import lock_output_path
-from chpf.tracking.demo import bundles_dir
+from chpf.tracking.demo import bundles_dir, shipped_bundles
 
 SEQUENCES_FILE = "sequences.json"
 """The output folder's list of sequences (what the jobs and the report read)."""
@@ -66,10 +66,12 @@ def resolve_bundles(suite: Suite) -> list[BundleRef]:
     """The suite's bundles, each loaded once (BundleError in one line if one fails) and matched
     with the object to render (a built-in with the bundle's fingerprint or one of ``meshes``)."""
     paths: list[Path] = []
+    shipped = shipped_bundles()
     for b in suite.bundles:
         if b == "shipped":
-            root = bundles_dir()
-            paths += sorted(p.parent for p in root.glob("*/manifest.json"))
+            paths += list(shipped.values())
+        elif b in shipped and not Path(b).exists():  # a shipped bundle by name: box, mug
+            paths.append(shipped[b])
         else:
             paths.append(Path(b))
     refs = []

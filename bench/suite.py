@@ -69,7 +69,8 @@ class ReportSuite(Section):
 
 @dataclass
 class Suite(Section):
-    """A bench suite. bundles: bundle folders, "shipped" = every bundle shipped with chpf;
+    """A bench suite. bundles: bundle folders, "shipped" = every bundle shipped with chpf, or
+    a shipped bundle's name (box, mug);
     meshes: mesh files (metres unless mesh_unit) of bundle objects that are not built in,
     matched by fingerprint; methods: registered methods, "paper" = the paper's
     (chpf.tracking.methods); modalities; seeds (filter seeds per sequence)."""

@@ -8,7 +8,7 @@ Usage::
     chpf-track --bundle B [--bundle B2 ...] (--images DIR [--depth DIR] [--depth-scale MM] |
                --video FILE) --camera FILE (--init-box x,y,w,h ... | --detections CSV_OR_JSON)
                [--fps 30]
-    chpf-track --demo [--bundle B] [--out DIR]
+    chpf-track --demo [--object box|mug | --bundle B] [--out DIR]
     common: [--method chpf|srl|augmcl|annealing|e2e|poserbpf|poserbpf++|fixed|none|all|a,b]
             [--modality rgb|rgbd] [--out DIR] [--config YAML] [--seed 0] [--set key=value ...]
             [--overlay FILE.mp4|DIR] [--poses FILE.jsonl]
@@ -111,6 +111,11 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="track the shipped short occluded sequence of the shipped bundle's object with "
         "CH-PF, CH-RBPF, SRL and PoseRBPF",
+    )
+    p.add_argument(
+        "--object",
+        default=None,
+        help="with --demo: the shipped bundle and sequence of this object (box, mug; default box)",
     )
     p.add_argument(
         "--bundle",
@@ -601,6 +606,10 @@ def check_input_options(args: argparse.Namespace) -> None:
     if len(given) > 1:
         shown = " and ".join("--" + g for g in given)
         raise ConfigError(f"chpf-track: give one input, not {shown}")
+    if args.object is not None and not args.demo:
+        raise ConfigError("--object: only with --demo (give --bundle otherwise)")
+    if args.object is not None and args.bundle is not None:
+        raise ConfigError("--demo: give --object or --bundle, not both")
     if not given:
         raise ConfigError(
             "chpf-track needs --bundle and an input: --dataset, --images or --video (or --demo)"
@@ -654,7 +663,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         if args.bundle is not None and len(args.bundle) > 1:
             raise ConfigError("--demo tracks one object: give --bundle at most once")
-        bundle = load(args.bundle[0] if args.bundle else shipped_bundle())
+        bundle = load(args.bundle[0] if args.bundle else shipped_bundle(args.object))
         dataset = demo_dataset(bundle)
         if args.modality != "rgb":
             raise ConfigError(f"{dataset}: the demo sequence is RGB only (no depth frames)")

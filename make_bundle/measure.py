@@ -49,10 +49,14 @@ def measure_render(obj, size: int, seconds: float = 2.0) -> float:
 
 
 def measure_ae_steps(
-    trainer_args: list[str], seconds: float = 3.0, warmup: int = 2
+    trainer_args: list[str], seconds: float = 3.0, warmup: int = 3
 ) -> tuple[float, str]:
     """(autoencoder training steps per second, precision): ``warmup`` steps (kernel set-up)
-    are not timed, then steps run for at least ``seconds`` (and at least 3 steps)."""
+    are not timed, then steps run for at least ``seconds`` (and at least 3 steps), in the
+    config's memory format. A rough figure: on this 2-core CPU the first two bf16 steps took
+    7-9 s each and later ones 1-1.7 s, with single steps of 9-10 s when other jobs ran, so a
+    few seconds' reading is 2x off either way; it only sizes the step caps, a guard (plan.py:
+    the trainings run to their max_time)."""
     import torch
     import yaml
 
@@ -72,6 +76,9 @@ def measure_ae_steps(
     bs = int(cfg["data"]["batch_size"])
     s = model.config.size
     x = torch.rand(bs, 3, s, s, device=dev)
+    if cfg["model"].get("channels_last", True):
+        model = model.to(memory_format=torch.channels_last)
+        x = x.contiguous(memory_format=torch.channels_last)
     dtype = torch.bfloat16 if prec.startswith("bf16") else torch.float16
 
     def step() -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -15,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from make_bundle.plan import OVERHEAD_S, TRAIN_MIN_S, Plan
+from make_bundle.plan import MARGIN, OVERHEAD_S, TRAIN_MIN_S, Plan
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -41,12 +42,24 @@ class Ctx:
 
     def train_seconds(self, stage: str, planned: int) -> int:
         """max_time of a training stage: ``planned``, shortened (never below TRAIN_MIN_S) so
-        that its start-up and the estimated stages after it still end by the deadline."""
+        that its start-up and the estimated stages after it still end by the deadline; or, when
+        the stages before it ran early (a budget plan), lengthened by its share of the time
+        they saved (the autoencoder its part of the two trainings' planned time, the
+        classifier the rest), keeping the plan's margin."""
         left = self.deadline - time.monotonic() - OVERHEAD_S[stage] - self.plan.after(stage)
         secs = int(max(TRAIN_MIN_S, min(planned, left)))
         if secs < planned:
             self.notes[stage] = f"max_time {planned} -> {secs} s (budget)"
             print(f"{stage}: max_time {planned} s -> {secs} s to end within the budget")
+            return secs
+        saved = left - planned - self.plan.budget_s * MARGIN / 2
+        if self.plan.preset != "budget" or not math.isfinite(saved) or saved < 1:
+            return secs
+        p = self.plan
+        share = p.ae_time_s / (p.ae_time_s + p.ch_time_s) if stage == "train_ae" else 1.0
+        secs = int(planned + saved * share)
+        self.notes[stage] = f"max_time {planned} -> {secs} s (earlier stages ran early)"
+        print(f"{stage}: max_time {planned} s -> {secs} s, the time earlier stages saved")
         return secs
 
 
@@ -102,13 +115,27 @@ def _train(c: Ctx, kind: str, cfg: str, data: str, run: str, steps: int, secs: i
     argv = [
         kind, "--config", str(ROOT / cfg), "--data.data_dir", str(c.d(data)),
         "--trainer.default_root_dir", str(c.d(run)), "--trainer.max_steps", str(steps),
-        "--trainer.max_time", _hms(secs), "--seed_everything", str(c.seed), *extra,
-        *c.trainer_args,
+        "--trainer.max_time", _hms(secs), "--model.lr_schedule_by_time", "true",
+        "--seed_everything", str(c.seed), *extra, *c.trainer_args,
     ]  # fmt: skip
     path = os.environ.get("PYTHONPATH")
     env = {**os.environ, "PYTHONPATH": str(ROOT) + (os.pathsep + path if path else "")}
     cmd = [sys.executable, "-m", "training.cli", *argv]
+    t0 = time.monotonic()
     _check(subprocess.run(cmd, env=env).returncode, f"chpf-train {kind}")
+    done = trained_steps(ckpt(c, run))
+    note = f"{done} steps in {(time.monotonic() - t0) / 60:.1f} min"
+    note += ", step cap" if done >= steps else ", to max_time"
+    prev = c.notes.get(f"train_{kind}")
+    c.notes[f"train_{kind}"] = f"{prev}; {note}" if prev else note
+    print(f"train_{kind}: {note}", flush=True)
+
+
+def trained_steps(path: Path) -> int:
+    """Optimiser steps of a Lightning checkpoint (its ``global_step``)."""
+    import torch
+
+    return int(torch.load(path, map_location="cpu", weights_only=False, mmap=True)["global_step"])
 
 
 def ckpt(c: Ctx, run: str) -> Path:

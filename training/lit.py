@@ -148,13 +148,47 @@ def jitter_colors(x: torch.Tensor, amount: float) -> torch.Tensor:
     return (x * gain + shift).clamp_(0.0, 1.0)
 
 
-def _warmup_cosine(step: int, warmup: int, total: float, min_ratio: float) -> float:
+WARMUP_TIME_SHARE = 0.1  # lr_schedule_by_time: the warm-up ends by this share of max_time
+
+
+def _warmup_cosine(
+    step: int, warmup: int, total: float, min_ratio: float, time_progress: float | None = None
+) -> float:
+    """Learning-rate factor: linear warm-up over ``warmup`` steps, then cosine decay to
+    ``min_ratio`` at ``total`` steps or, when ``time_progress`` (share of ``max_time`` gone,
+    0-1) is given, at whichever of the two limits comes first; the warm-up then also ends by
+    ``WARMUP_TIME_SHARE`` of the time (a 10-minute run on a loaded CPU made 37-51 steps, fewer
+    than the 100 warm-up steps, and never reached its peak rate)."""
     if warmup > 0 and step < warmup:
-        return (step + 1) / warmup
-    if not math.isfinite(total) or total <= warmup:
+        warm = (step + 1) / warmup
+        if time_progress is not None:
+            warm = max(warm, time_progress / WARMUP_TIME_SHARE)
+        if warm < 1.0:
+            return warm
+    progress = 0.0
+    if math.isfinite(total) and total > warmup:
+        progress = max(0.0, (step - warmup) / max(1.0, total - warmup))
+    elif time_progress is None:
         return 1.0
-    progress = min(1.0, (step - warmup) / max(1.0, total - warmup))
+    if time_progress is not None:
+        progress = max(progress, time_progress)
+    progress = min(1.0, progress)
     return min_ratio + (1.0 - min_ratio) * 0.5 * (1.0 + math.cos(math.pi * progress))
+
+
+def time_progress(callbacks: list[Any]) -> float | None:
+    """Share (0-1) of the trainer's ``max_time`` that training has used so far (its ``Timer``
+    callback), or None without a ``max_time``."""
+    from lightning.pytorch.callbacks import Timer
+
+    timer = next((c for c in callbacks if isinstance(c, Timer)), None)
+    if timer is None:
+        return None
+    left = timer.time_remaining()
+    if left is None:
+        return None
+    used = timer.time_elapsed()
+    return min(1.0, max(0.0, used / max(used + left, 1e-9)))
 
 
 class _ChpfModule(pl.LightningModule):
@@ -171,6 +205,7 @@ class _ChpfModule(pl.LightningModule):
         self.save_hyperparameters({k: _plain(v) for k, v in init_args.items() if k not in skip})
         self.preprocess = Preprocess()
         self.data_info: dict[str, Any] = {}
+        self._time_progress: float | None = None  # lr_schedule_by_time: share of max_time gone
 
     # --- data -----------------------------------------------------------------------------
     def _model_size(self) -> int:
@@ -206,9 +241,18 @@ class _ChpfModule(pl.LightningModule):
         total = float(self.trainer.estimated_stepping_batches) if self._trainer else math.inf
         warmup, min_ratio = int(hp.warmup_steps), float(hp.min_lr_ratio)
         sched = torch.optim.lr_scheduler.LambdaLR(
-            opt, lambda s: _warmup_cosine(s, warmup, total, min_ratio)
+            opt, lambda s: _warmup_cosine(s, warmup, total, min_ratio, self._time_progress)
         )
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+    def lr_scheduler_step(self, scheduler: Any, metric: Any) -> None:
+        """With ``lr_schedule_by_time``: the share of ``max_time`` gone now sets the next
+        step's learning rate (rank 0's clock, broadcast, so that DDP ranks keep equal
+        weights)."""
+        if self.hparams.get("lr_schedule_by_time", False) and self._trainer is not None:
+            p = time_progress(self.trainer.callbacks)
+            self._time_progress = self.trainer.strategy.broadcast(p, src=0)
+        super().lr_scheduler_step(scheduler, metric)
 
     # --- checkpoint metadata ----------------------------------------------------------------
     def chpf_info(self) -> dict[str, Any]:
@@ -395,6 +439,10 @@ class AELitModule(_ChpfModule):
         bootstrap_ratio: share of the worst pixels averaged by the bootstrapped L2 loss.
         warmup_steps: linear warm-up steps; then cosine decay to ``lr * min_lr_ratio``.
         min_lr_ratio: final learning rate as a fraction of ``lr``.
+        lr_schedule_by_time: the cosine decay ends at ``trainer.max_time`` when that comes
+            before ``max_steps`` (progress = the larger of the steps' and the time's share), so
+            that a run stopped by ``max_time`` still ends at ``lr * min_lr_ratio``; off, the
+            schedule follows steps only (same seed, same bytes when ``max_steps`` stops it).
         input_jitter: extra colour jitter on the (already augmented) inputs, 0 = off.
         channels_last: channels_last memory format (faster convolutions on CPU).
         val_codebook: npz from ``python -m training.codebook`` (rotations + clean crops); the
@@ -430,6 +478,7 @@ class AELitModule(_ChpfModule):
         bootstrap_ratio: float = 0.25,
         warmup_steps: int = 100,
         min_lr_ratio: float = 0.02,
+        lr_schedule_by_time: bool = False,
         input_jitter: float = 0.0,
         channels_last: bool = True,
         val_codebook: str | None = None,
@@ -608,7 +657,8 @@ class CHLitModule(_ChpfModule):
             autoencoder's codebook embeddings (no second codebook). Needs ``init_from_ae``.
         lr: Adam learning rate of the head (peak).
         encoder_lr_scale: encoder learning rate = ``lr * encoder_lr_scale`` (when trained).
-        weight_decay, warmup_steps, min_lr_ratio, channels_last: as in ``AELitModule``.
+        weight_decay, warmup_steps, min_lr_ratio, lr_schedule_by_time, channels_last: as in
+            ``AELitModule``.
         input_jitter: extra colour jitter on the observed crops, 0 = off.
         augment: occluders and appearance changes drawn onto the observed crops
             (``training.batch_augment.BatchAugment``; off by default).
@@ -645,6 +695,7 @@ class CHLitModule(_ChpfModule):
         weight_decay: float = 0.0,
         warmup_steps: int = 100,
         min_lr_ratio: float = 0.02,
+        lr_schedule_by_time: bool = False,
         input_jitter: float = 0.0,
         channels_last: bool = True,
         hard_negative_deg: tuple[float, float] = (20.0, 45.0),

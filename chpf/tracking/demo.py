@@ -1,13 +1,13 @@
-"""``chpf-track --demo``: a short occluded sequence of the shipped bundle's object, tracked by
-CH-PF, CH-RBPF and two baselines (SRL, PoseRBPF) with the default config.
+"""``chpf-track --demo [--object box|mug]``: a short occluded sequence of a shipped bundle's
+object, tracked by CH-PF, CH-RBPF and two baselines (SRL, PoseRBPF) with the default config.
 
-The sequence is a shipped asset (``chpf/assets/demo/box``, a BOP root of RGB frames, ground
-truth, simulated detections and the box's model), so the demo needs neither rendering nor the
-data generator and gives the same table on every machine. It was made by ``chpf-gen-data
-sequences --objects box --num-scenes 1 --frames 60 --occlusion partial --seed 0`` with
-``sequences.width=320, height=240, focal=300, default_distractors=1`` (its
-``sequences_info.json`` records every setting), keeping the RGB frames, the JSON files and the
-target's model. ``--seed`` seeds the filters only.
+Each sequence is a shipped asset (``chpf/assets/demo/NAME``, a BOP root of RGB frames, ground
+truth, simulated detections and the target's model), so the demo needs neither rendering nor
+the data generator and gives the same table on every machine. Each was made by
+``chpf-gen-data sequences --objects NAME --num-scenes 1 --frames 60 --occlusion partial --seed
+0 --width 320 --height 240 --set sequences.focal=300 --set sequences.default_distractors=1``
+(its ``sequences_info.json`` records every setting), keeping the RGB frames, the JSON files and
+the target's model. ``--seed`` seeds the filters only.
 """
 
 from __future__ import annotations
@@ -28,13 +28,27 @@ def bundles_dir() -> Path:
     return ASSETS / "bundles"
 
 
-def shipped_bundle() -> Path:
-    """The first shipped bundle folder (one with a manifest.json); BundleError if none."""
+def shipped_bundles() -> dict[str, Path]:
+    """Name -> folder of every shipped bundle (a folder with a manifest.json), sorted."""
     root = bundles_dir()
     found = sorted(p.parent for p in root.glob("*/manifest.json")) if root.is_dir() else []
+    return {p.name: p for p in found}
+
+
+def shipped_bundle(name: str | None = None) -> Path:
+    """The shipped bundle ``name`` (e.g. 'mug'), or the first one (the box) without a name;
+    BundleError in one line if there is none of that name."""
+    found = shipped_bundles()
     if not found:
-        raise BundleError(f"{root}: no shipped model bundle; pass --bundle BUNDLE_DIR")
-    return found[0]
+        raise BundleError(f"{bundles_dir()}: no shipped model bundle; pass --bundle BUNDLE_DIR")
+    if name is None:
+        return next(iter(found.values()))
+    if name not in found:
+        raise BundleError(
+            f"no shipped bundle for {name!r} (shipped: {', '.join(found)}); pass --bundle "
+            "BUNDLE_DIR"
+        )
+    return found[name]
 
 
 def demo_dataset(bundle: Bundle) -> Path:

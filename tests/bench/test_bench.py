@@ -341,3 +341,25 @@ def test_every_shipped_suite_loads_under_its_own_name() -> None:
     assert all(s.name == stem for stem, s in suites.items())
     reported = suites["default"].sequences.seed
     assert reported not in {suites["dev"].sequences.seed, suites["dev2"].sequences.seed}
+
+
+def test_suites_name_shipped_bundles(tmp_path: Path, monkeypatch) -> None:
+    """'shipped' is every shipped bundle, a shipped bundle's name is that one; the quick suite
+    tracks the box alone whatever else is shipped."""
+    pytest.importorskip("onnx")
+    from bench.sequences import resolve_bundles
+    from bench.suite import load_suite
+    from tests.chpf.tracking.conftest import write_template_bundle
+
+    root = tmp_path / "shipped"
+    write_template_bundle(root / "box")
+    write_template_bundle(root / "mug", name="mug")
+    monkeypatch.setattr("chpf.tracking.demo.bundles_dir", lambda: root)
+    monkeypatch.chdir(tmp_path)  # no folder named box or mug here
+
+    def names(**over) -> list[tuple[str, int]]:
+        return [(r.name, r.obj_id) for r in resolve_bundles(load_suite("quick", over))]
+
+    assert names() == [("box", 2)]
+    assert names(bundles=["mug"]) == [("mug", 1)]
+    assert names(bundles=["shipped"]) == [("box", 2), ("mug", 1)]

@@ -89,6 +89,28 @@ def test_plan_scales_with_the_measured_rates() -> None:
         make_plan(60)
 
 
+@pytest.mark.parametrize("budget", [600, 5400])
+def test_a_low_step_probe_does_not_cut_the_trainings_short(budget) -> None:
+    """The probe read 0.28 steps/s where the training ran 0.65 (README): the step caps leave
+    room for a few times the probed rate, and the trainings follow their max_time."""
+    from make_bundle.measure import Rates
+    from make_bundle.plan import AE_STEPS_PER_S, CH_STEPS_PER_S, make_plan
+
+    plan = make_plan(budget, rates=Rates(157.0, 0.28, "bf16-mixed"))
+    ch_rate = CH_STEPS_PER_S * 0.28 / AE_STEPS_PER_S
+    assert plan.ae_steps >= 3 * 0.28 * plan.ae_time_s
+    assert plan.ch_steps >= 3 * ch_rate * plan.ch_time_s
+
+
+def test_both_trainings_schedule_their_lr_by_time(made: Path) -> None:
+    for run in ("run_ae", "run_ch"):
+        cfgs = list((made.parent / "box.work" / run).rglob("config.yaml"))
+        assert cfgs, run
+        assert yaml.safe_load(cfgs[0].read_text())["model"]["lr_schedule_by_time"] is True
+    rep = (made / "report.md").read_text()
+    assert "4 steps in" in rep  # the stage table says how many steps each training ran
+
+
 @pytest.mark.parametrize("budget", [300, 600, 5400])
 @pytest.mark.parametrize("rates", [None, (500.0, 8.0), (60.0, 2.0)])
 def test_the_plan_accounts_for_every_stage_within_the_budget(budget, rates) -> None:
@@ -122,6 +144,33 @@ def test_training_is_shortened_to_end_by_the_deadline(tmp_path: Path) -> None:
     assert "max_time" in ctx.notes["train_ae"]
     ctx.deadline = time.monotonic()  # already late: the floor
     assert ctx.train_seconds("train_ch", plan.ch_time_s) == TRAIN_MIN_S
+
+
+def test_training_takes_the_time_earlier_stages_saved(tmp_path: Path) -> None:
+    """The mug's pairs took 10.2 of their planned 20.1 minutes: the trainings get that time
+    (the autoencoder its share of the two, the classifier the rest), the margin stays free."""
+    import time
+
+    from make_bundle.plan import MARGIN, OVERHEAD_S, make_plan
+    from make_bundle.stages import Ctx
+
+    plan = make_plan(5400)
+    ctx = Ctx("box", "m", tmp_path, tmp_path, plan, 1, 0, [], False, tmp_path)
+    on_time = plan.after("train_ae") + OVERHEAD_S["train_ae"] + plan.ae_time_s
+    ctx.deadline = time.monotonic() + on_time + 5400 * MARGIN / 2
+    assert abs(ctx.train_seconds("train_ae", plan.ae_time_s) - plan.ae_time_s) <= 1  # on time
+    ctx.notes.clear()
+    ctx.deadline += 600  # ten minutes ahead
+    share = plan.ae_time_s / (plan.ae_time_s + plan.ch_time_s)
+    got = ctx.train_seconds("train_ae", plan.ae_time_s)
+    assert abs(got - (plan.ae_time_s + 600 * share)) <= 2
+    assert "ran early" in ctx.notes["train_ae"]
+    on_time = plan.after("train_ch") + OVERHEAD_S["train_ch"] + plan.ch_time_s
+    ctx.deadline = time.monotonic() + on_time + 5400 * MARGIN / 2 + 300
+    assert abs(ctx.train_seconds("train_ch", plan.ch_time_s) - (plan.ch_time_s + 300)) <= 2
+    tiny = Ctx("box", "m", tmp_path, tmp_path, make_plan(300, "tiny"), 1, 0, [], False, tmp_path)
+    tiny.deadline = time.monotonic() + 10_000
+    assert tiny.train_seconds("train_ae", 60) == 60  # the tiny preset: as planned
 
 
 def test_an_interrupted_stage_restarts_cleanly(made: Path, capsys) -> None:

@@ -239,3 +239,46 @@ def test_unknown_and_out_of_range_model_keys_are_refused(
         main([*args, "--model.encoder.kernel", "4"])
     with pytest.raises(ConfigError, match=r"model\.encoder\.channels: 0 is out of range"):
         main([*args, "--model.encoder.channels", "[8, 0]"])
+
+
+def test_lr_schedule_by_time_ends_the_decay_at_max_time(ae_dir: Path, tmp_path: Path) -> None:
+    """A run stopped by max_time long before max_steps (chpf-make-bundle's trainings) still
+    ends at lr * min_lr_ratio with lr_schedule_by_time; without it the lr stays near its peak."""
+    lrs = {}
+    for by_time in ("true", "false"):
+        out = tmp_path / f"run_{by_time}"
+        last = _train_ae(
+            ae_dir, out, "--trainer.max_steps", "100000", "--trainer.max_time", "00:00:00:03",
+            "--trainer.val_check_interval", "100000", "--model.warmup_steps", "0",
+            "--model.lr_schedule_by_time", by_time,
+        )  # fmt: skip
+        ck = torch.load(last, weights_only=False)
+        assert 1 < ck["global_step"] < 100000  # stopped by max_time
+        lrs[by_time] = ck["lr_schedulers"][0]["_last_lr"][0]
+    lr = 3e-3  # configs/train_ae_tiny.yaml's; min_lr_ratio 0.02 by default
+    assert lrs["true"] == pytest.approx(0.02 * lr)  # decayed to lr * min_lr_ratio
+    assert lrs["false"] > 0.9 * lr
+
+
+def test_warmup_cosine_follows_the_earlier_limit() -> None:
+    import time
+
+    from lightning.pytorch.callbacks import Timer
+    from lightning.pytorch.trainer.states import RunningStage
+
+    from training.lit import _warmup_cosine, time_progress
+
+    assert _warmup_cosine(50, 100, 10_000, 0.02) == pytest.approx(0.51)  # warm-up: steps
+    assert _warmup_cosine(10, 100, 10_000, 0.02, 0.05) == pytest.approx(0.5)  # or 10 % of time
+    assert _warmup_cosine(50, 100, 10_000, 0.02, 0.01) == pytest.approx(0.51)  # what's first
+    assert _warmup_cosine(50, 100, 10_000, 0.02, 1.0) == pytest.approx(0.02)  # few steps
+    assert _warmup_cosine(200, 100, 10_000, 0.02) > 0.99  # steps only: early
+    assert _warmup_cosine(200, 100, 10_000, 0.02, 1.0) == pytest.approx(0.02)  # time is up
+    assert _warmup_cosine(200, 100, 10_000, 0.02, 0.5) == pytest.approx(0.51)
+    assert _warmup_cosine(10_000, 100, 10_000, 0.02, 0.1) == pytest.approx(0.02)  # steps up
+    assert _warmup_cosine(200, 100, math.inf, 0.02, 0.5) == pytest.approx(0.51)  # no max_steps
+    assert _warmup_cosine(200, 100, math.inf, 0.02) == 1.0
+    timer = Timer(duration={"seconds": 100})
+    assert time_progress([]) is None and time_progress([Timer(duration=None)]) is None
+    timer._start_time[RunningStage.TRAINING] = time.monotonic() - 25
+    assert time_progress([timer]) == pytest.approx(0.25, abs=0.01)

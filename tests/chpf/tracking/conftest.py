@@ -106,8 +106,11 @@ def _template_head(e: int) -> bytes:
 _VIEWS: dict = {}
 
 
-def write_template_bundle(root, shared: bool = True, size: int = TB_SIZE, k: int = TB_CODEBOOK):
-    """Write a template bundle of the built-in TB_OBJECT into folder ``root``; returns root."""
+def write_template_bundle(
+    root, shared: bool = True, size: int = TB_SIZE, k: int = TB_CODEBOOK, name: str = TB_OBJECT
+):
+    """Write a template bundle of the built-in ``name`` (default TB_OBJECT) into folder
+    ``root``; returns root."""
     import onnxruntime as ort
 
     from chpf.crops import CropSpec, render_crops
@@ -115,10 +118,10 @@ def write_template_bundle(root, shared: bool = True, size: int = TB_SIZE, k: int
     from chpf.objects import get_object, object_fingerprint
     from export.codebook import downsample_depth
 
-    obj = get_object(TB_OBJECT)
+    obj = get_object(name)
     spec = CropSpec.for_object(obj.diameter, size=size)
     grid = RotationGrid.uniform(k)
-    key = (size, k)
+    key = (size, k, name)
     if key not in _VIEWS:  # render once per session for both bundles
         _VIEWS[key] = render_crops(None, obj, grid.rotations, spec)
     views = _VIEWS[key]

@@ -393,3 +393,41 @@ def test_device_and_precision_options(dataset, tmp_path, capsys):
     code, lines = _run(capsys, "--demo", "--method", "srl", "--precision", "int8", "--no-plot",
                        "--no-progress", "--out", tmp_path / "i")  # fmt: skip
     assert code == 0 and lines[0].endswith("int8")
+
+
+@pytest.fixture
+def shipped_box_and_mug(template_bundle, tmp_path, monkeypatch) -> Path:
+    """A stand-in for chpf/assets/bundles with tiny box and mug bundles."""
+    from tests.chpf.tracking.conftest import write_template_bundle
+
+    root = tmp_path / "shipped"
+    shutil.copytree(template_bundle, root / "box")
+    write_template_bundle(root / "mug", name="mug")
+    monkeypatch.setattr("chpf.tracking.demo.bundles_dir", lambda: root)
+    return root
+
+
+def test_demo_object_mug_tracks_the_shipped_mug_sequence(shipped_box_and_mug, tmp_path, capsys):
+    from chpf.tracking.demo import ASSETS, shipped_bundle
+
+    assert shipped_bundle() == shipped_box_and_mug / "box"  # the default stays the box
+    assert shipped_bundle("mug") == shipped_box_and_mug / "mug"
+    out = tmp_path / "demo_mug"
+    argv = ["--demo", "--object", "mug", "--method", "srl", "--out", out, "--no-progress"]
+    code, lines = _run(capsys, *argv, "--no-plot")
+    assert code == 0 and lines[0].startswith("detections: ")
+    settings = json.loads((out / "track_settings.json").read_text())
+    assert Path(settings["dataset"]) == ASSETS / "demo" / "mug"
+    rows = read_results_csv(out / "srl_mug-test.csv")
+    assert len(rows) == 60 and {r.obj_id for r in rows} == {1}  # the mug's obj_id
+    table = (out / "auc_table.txt").read_text()
+    assert [line.split()[0] for line in table.splitlines()[2:]] == ["srl"]
+
+
+def test_demo_object_refusals_are_one_line(shipped_box_and_mug, capsys, monkeypatch, tmp_path):
+    line = _cli_error(capsys, monkeypatch, "--demo", "--object", "can", "--out", tmp_path / "a")
+    assert "no shipped bundle for 'can'" in line and "box, mug" in line
+    line = _cli_error(capsys, monkeypatch, "--object", "mug", "--dataset", tmp_path)
+    assert "--object: only with --demo" in line
+    argv = ["--demo", "--object", "mug", "--bundle", shipped_box_and_mug / "box"]
+    assert "not both" in _cli_error(capsys, monkeypatch, *argv, "--out", tmp_path / "b")
