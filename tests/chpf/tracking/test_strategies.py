@@ -54,7 +54,10 @@ def test_chpf_paper_sums_ignore_weights_and_freshness():
 def test_chpf_default_is_weighted_sums_with_l_cubed_and_the_box_scale_c():
     config = CHPFConfig()
     assert (config.sums, config.l_power, config.c_box, config.c_box_shape) == (
-        "weighted", 3.0, 0.1, "gauss",
+        "weighted",
+        3.0,
+        0.1,
+        "gauss",
     )
     e_c = W_FIXED @ C_FIXED
     e_l3 = W_FIXED @ L_FIXED**3
