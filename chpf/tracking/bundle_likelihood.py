@@ -311,9 +311,8 @@ class BundleLikelihood:
         t = np.asarray(t, dtype=np.float64)
         crops, emb = self._crops_and_embed(frame, t, ms)
         t0 = time.perf_counter()
-        cos = emb @ self._codebook_t
+        cos = self._all_cosines(emb, t)
         behind = t[:, 2] < self.z_min
-        cos[behind] = -1.0
         ms["lookup"] = ms_since(t0)
 
         def misaligned(idx: np.ndarray) -> np.ndarray:
@@ -346,9 +345,15 @@ class BundleLikelihood:
                 frame.rgb, self._affines(frame, t0[None], self.spec), cue[0].shape[0]
             )
             if np.array_equal(crop[0], cue[0]):
-                cos = (cue[1] @ self._codebook_t)[0]
-                return (np.full_like(cos, -1.0) if t0[2] < self.z_min else cos), t0
+                return self._all_cosines(cue[1], t0[None])[0], t0
         return self.codebook_scores(frame, t0[None]).cos[0], t0
+
+    def _all_cosines(self, emb: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Cosines (N,K) of embeddings emb (N,E) of the crops at t (N,3) with the whole AE
+        codebook; -1 for a crop behind the camera (z below ``z_min``)."""
+        cos = emb @ self._codebook_t
+        cos[t[:, 2] < self.z_min] = -1.0
+        return cos
 
     def _cue_translation(self, frame: Frame) -> np.ndarray | None:
         """Translation (3,) metres of the crop at ``frame.cue_box()``'s centre (depth guessed
