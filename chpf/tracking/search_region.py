@@ -271,6 +271,21 @@ class SearchRegion:
         estimate's box alone, a tenth of a side off, scores orders of magnitude lower)."""
         return inside(np.concatenate([own_box, jittered(own_box, OWN_JITTER, rng)]), width, height)
 
+    def _scored(
+        self, frame: Frame, boxes: np.ndarray, own_box: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, float, np.ndarray]:
+        """Probe boxes (M,4) scored in one pass with the estimate's own box (1,4) and its
+        jittered copies (``_own_boxes``): their scores (M,), the estimate's score (the best of
+        its boxes) and their ``gains`` (M,)."""
+        assert self.prober is not None
+        height, width = frame.rgb.shape[:2]
+        own = self._own_boxes(own_box, rng, width, height)
+        both = probe_scores(
+            self.prober, frame, np.concatenate([own, boxes]), self.config.probe_score
+        )
+        own_score, scores = float(both[: len(own)].max()), both[len(own) :]
+        return scores, own_score, self.gains(boxes, scores, own_box, own_score)
+
     def gains(self, boxes: np.ndarray, scores: np.ndarray, own_box: np.ndarray,
               own_score: float) -> np.ndarray:  # fmt: skip
         """How much each probe (M,4) with ``scores`` (M,) beats what is known at its place: its
@@ -308,12 +323,7 @@ class SearchRegion:
         kept = np.concatenate([self.decoys[:m], self._kept[:m]])
         grid = self.probe_boxes(whole, side, rng, max(n - 2 * len(kept), 1))
         boxes = inside(np.concatenate([kept, jittered(kept, 1, rng), grid]), width, height)
-        own = self._own_boxes(own_box, rng, width, height)
-        both = probe_scores(
-            self.prober, frame, np.concatenate([own, boxes]), self.config.probe_score
-        )
-        own_score, scores = float(both[: len(own)].max()), both[len(own) :]
-        gain = self.gains(boxes, scores, own_box, own_score)
+        scores, _, gain = self._scored(frame, boxes, own_box, rng)
         found = gain > self.config.probe_margin
         self.elsewhere = bool(found.any())
         self._kept = boxes[found][np.argsort(-gain[found])[:m]]
@@ -349,10 +359,7 @@ class SearchRegion:
         kept = np.concatenate([self._kept, jittered(self._kept, 1, rng)])
         grid = self.probe_boxes(whole, fx * extent / self._z, rng, n - len(kept))
         coarse = inside(np.concatenate([kept, grid]), width, height)
-        own = self._own_boxes(own_box, rng, width, height)
-        both = probe_scores(self.prober, frame, np.concatenate([own, coarse]), kind)
-        own_score, coarse_scores = float(both[: len(own)].max()), both[len(own) :]
-        coarse_gains = self.gains(coarse, coarse_scores, own_box, own_score)
+        _, own_score, coarse_gains = self._scored(frame, coarse, own_box, rng)
         best = coarse[int(np.argmax(coarse_gains))]
         fine = inside(jittered(best[None], max(n // 2, 1), rng), width, height)
         fine_scores = probe_scores(self.prober, frame, fine, kind)
