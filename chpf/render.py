@@ -28,6 +28,7 @@ Conventions:
 
 from __future__ import annotations
 
+import atexit
 import os
 import re
 import sys
@@ -420,6 +421,18 @@ def _light_pose(direction_cv: np.ndarray) -> np.ndarray:
     return T
 
 
+# Every open Renderer, closed at exit while the interpreter is still whole: GL objects freed
+# later, by finalizers during shutdown, make PyOpenGL log "Python is likely shutting down" (seen
+# with textured meshes).
+_OPEN: weakref.WeakSet[Renderer] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_renderers() -> None:
+    for renderer in list(_OPEN):
+        renderer.close()
+
+
 class Renderer:
     """Offscreen renderer of ``(ObjectModel, R, t)`` lists with OpenCV intrinsics.
 
@@ -453,6 +466,7 @@ class Renderer:
         self._light = pr.DirectionalLight(color=np.ones(3), intensity=3.0)
         self._light_node = self._scene.add(self._light, pose=np.eye(4))
         self._entries: dict[int, _Entry] = {}
+        _OPEN.add(self)
 
     # -- context management
     def close(self) -> None:

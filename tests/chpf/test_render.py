@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import gc
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -186,18 +188,18 @@ def test_builtin_colours_are_rendered(renderer):
     assert ((px[:, 0] > 120) & (px[:, 1] < 80) & (px[:, 2] < 80)).sum() > 20  # the red print
 
 
-def test_textured_bop_ply_renders_its_texture(renderer, tmp_path):
+def write_textured_ply(folder) -> None:
+    """A 10 cm cube in mm as BOP writes models, ``obj_000001.ply`` + ``tex.png`` in ``folder``:
+    its UVs all fall in the texture's bottom half, which is blue (the top half is green)."""
     from PIL import Image
 
-    from chpf.objects import load_mesh
-
-    mesh = trimesh.creation.box(extents=(100.0, 100.0, 100.0))  # mm, as in BOP
+    mesh = trimesh.creation.box(extents=(100.0, 100.0, 100.0))
     mesh.unmerge_vertices()
     uv = np.random.default_rng(0).random((len(mesh.vertices), 2)) * 0.45  # v < 0.5: bottom
     image = np.zeros((64, 64, 3), np.uint8)
     image[:32] = (0, 200, 0)
     image[32:] = (0, 0, 200)
-    Image.fromarray(image).save(tmp_path / "tex.png")
+    Image.fromarray(image).save(folder / "tex.png")
     header = [
         "ply", "format ascii 1.0", "comment TextureFile tex.png",
         f"element vertex {len(mesh.vertices)}", "property float x", "property float y",
@@ -206,12 +208,34 @@ def test_textured_bop_ply_renders_its_texture(renderer, tmp_path):
     ]  # fmt: skip
     body = [f"{x} {y} {z} {u} {v}" for (x, y, z), (u, v) in zip(mesh.vertices, uv, strict=True)]
     body += [f"3 {a} {b} {c}" for a, b, c in mesh.faces]
-    (tmp_path / "obj_000001.ply").write_text("\n".join(header + body) + "\n")
+    (folder / "obj_000001.ply").write_text("\n".join(header + body) + "\n")
+
+
+def test_textured_bop_ply_renders_its_texture(renderer, tmp_path):
+    from chpf.objects import load_mesh
+
+    write_textured_ply(tmp_path)
     obj = load_mesh(tmp_path / "obj_000001.ply", unit="mm")
     out = renderer.render(
         [(obj, np.eye(3), np.array([0.0, 0.0, 0.5]))], K, light_intensity=0.0, ambient=1.0
     )
     np.testing.assert_allclose(out.rgb[out.masks[0]].mean(0), [0, 0, 200], atol=3)
+
+
+def test_a_renderer_left_open_exits_quietly_with_a_textured_mesh(tmp_path):
+    """A process that ends with a textured mesh in an open Renderer (as render workers do, through
+    chpf.crops' shared renderer)
+    prints nothing: PyOpenGL used to log "Python is likely shutting down" from finalizers."""
+    write_textured_ply(tmp_path)
+    code = (
+        "import numpy as np; from chpf.objects import load_mesh\n"
+        "from chpf.crops import CropSpec, _shared_renderer, render_crops\n"
+        f"obj = load_mesh({str(tmp_path / 'obj_000001.ply')!r}, unit='mm')\n"
+        "render_crops(_shared_renderer(64), obj, np.eye(3)[None], CropSpec.for_object(0.17))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stderr == ""
 
 
 def test_size_override_and_cache_release(renderer, box):
