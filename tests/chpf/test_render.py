@@ -224,8 +224,8 @@ def test_textured_bop_ply_renders_its_texture(renderer, tmp_path):
 
 def test_a_renderer_left_open_exits_quietly_with_a_textured_mesh(tmp_path):
     """A process that ends with a textured mesh in an open Renderer (as render workers do, through
-    chpf.crops' shared renderer)
-    prints nothing: PyOpenGL used to log "Python is likely shutting down" from finalizers."""
+    chpf.crops' shared renderer) prints nothing: PyOpenGL used to log "Python is likely shutting
+    down" from finalizers."""
     write_textured_ply(tmp_path)
     code = (
         "import numpy as np; from chpf.objects import load_mesh\n"
