@@ -116,8 +116,11 @@ def _train(c: Ctx, kind: str, cfg: str, data: str, run: str, steps: int, secs: i
         kind, "--config", str(ROOT / cfg), "--data.data_dir", str(c.d(data)),
         "--trainer.default_root_dir", str(c.d(run)), "--trainer.max_steps", str(steps),
         "--trainer.max_time", _hms(secs), "--model.lr_schedule_by_time", "true",
-        "--seed_everything", str(c.seed), *extra, *c.trainer_args,
+        "--seed_everything", str(c.seed), *extra,
     ]  # fmt: skip
+    if not c.progress:  # Lightning's bar would fill a log with carriage returns
+        argv += ["--trainer.enable_progress_bar", "false"]
+    argv += c.trainer_args  # the user's --trainer.* options win
     path = os.environ.get("PYTHONPATH")
     env = {**os.environ, "PYTHONPATH": str(ROOT) + (os.pathsep + path if path else "")}
     cmd = [sys.executable, "-m", "training.cli", *argv]

@@ -173,6 +173,12 @@ def test_training_takes_the_time_earlier_stages_saved(tmp_path: Path) -> None:
     assert tiny.train_seconds("train_ae", 60) == 60  # the tiny preset: as planned
 
 
+def test_no_progress_turns_off_the_trainings_bars(made: Path) -> None:
+    for run in ("run_ae", "run_ch"):
+        (cfg,) = (made.parent / "box.work" / run).rglob("config.yaml")
+        assert yaml.safe_load(cfg.read_text())["trainer"]["enable_progress_bar"] is False
+
+
 def test_an_interrupted_stage_restarts_cleanly(made: Path, capsys) -> None:
     work = made.parent / "box.work"
     (work / "done" / "track.json").unlink()  # as if killed during tracking
