@@ -69,6 +69,19 @@ def test_mm_mesh_given_as_metres_is_refused(tmp_path: Path, capsys) -> None:
     assert not (tmp_path / "b.work").exists()
 
 
+def test_a_mesh_file_makes_a_bundle_that_tracks_its_sequence(tmp_path: Path) -> None:
+    """A mesh file has obj_id 0 in its bundle and the first free id (5) in the generated
+    sequence: the track stage must track that one (it stopped the duck's 90-minute run)."""
+    mesh = trimesh.creation.box(extents=np.array([0.08, 0.06, 0.04]))
+    mesh.visual.vertex_colors = np.random.default_rng(0).integers(0, 255, (8, 4), np.uint8)
+    mesh.export(tmp_path / "part.ply")
+    args = [*ARGS[2:], "--object", str(tmp_path / "part.ply"), "--out", str(tmp_path / "b")]
+    assert main(args) == 0
+    assert Bundle.load(tmp_path / "b").obj_info.obj_id == 0
+    tracked = (tmp_path / "b.work" / "track_stdout.txt").read_text()
+    assert "chpf" in tracked and "poserbpf" in tracked
+
+
 def test_parse_budget() -> None:
     assert parse_budget("90m") == 5400 and parse_budget("1h30m") == 5400
     assert parse_budget("45s") == 45 and parse_budget("10m") == 600
