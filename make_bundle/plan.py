@@ -91,8 +91,13 @@ class Plan:
         return sum(self.est_s.get(k, 0.0) for k in names[names.index(stage) + 1 :])
 
 
-# a 12-triangle box at 64x64 on this CPU, one process (DESIGN.md: ~2 ms per crop)
-NOMINAL_RENDERS_PER_S = 500.0
+# what measure_render reads, one process, on the 2-core CPU where PAIRS_PER_S was measured: on a
+# quiet machine it read 254 and 178 renders/s for the box, 228 for the mug, 214 and 267 for
+# pybullet's 4k-triangle textured duck, whose pairs stage then composed 592 pairs/s (PAIRS_PER_S:
+# 556). The 500 this was before (DESIGN.md's ~2 ms per crop) planned the duck's pairs at half
+# the rate they ran: the data stages took 11 of their 25 minutes, with a pool of 72,072 renders
+# where the recipe's has 120,000.
+NOMINAL_RENDERS_PER_S = 250.0
 
 
 def _tiny(budget_s: float) -> Plan:

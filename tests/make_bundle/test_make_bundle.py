@@ -102,6 +102,16 @@ def test_plan_scales_with_the_measured_rates() -> None:
         make_plan(60)
 
 
+def test_a_quiet_machines_probe_plans_the_recipes_pool() -> None:
+    """The duck's quiet 90-minute run read 267 renders/s and composed pairs at the recipe's rate
+    (592/s): its plan should hold the recipe's 120,000-render pool (it planned 72,072)."""
+    from make_bundle.measure import Rates
+    from make_bundle.plan import make_plan
+
+    plan = make_plan(5400, rates=Rates(267.0, 13.26, "bf16-mixed"), spent_s=20.0)
+    assert plan.pairs_pool == 120_000 and plan.pairs_n >= 600_000
+
+
 @pytest.mark.parametrize("budget", [600, 5400])
 def test_a_low_step_probe_does_not_cut_the_trainings_short(budget) -> None:
     """The probe read 0.28 steps/s where the training ran 0.65 (README): the step caps leave
