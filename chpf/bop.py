@@ -159,6 +159,14 @@ def model_path(root: str | Path, obj_id: int) -> Path:
     return models_dir(root) / f"obj_{obj_id:06d}.ply"
 
 
+def recorded_target_obj_id(root: str | Path) -> int:
+    """The obj_id ``chpf-gen-data sequences`` gave its target object in the BOP root ``root``
+    (its ``sequences_info.json``): a mesh file without a BOP name has obj_id 0 in its bundle and
+    gets the first id after the built-ins' there."""
+    info = json.loads((Path(root) / SEQUENCES_INFO).read_text(encoding="utf-8"))
+    return int(next(o["obj_id"] for o in info["objects"] if o["role"] == "target"))
+
+
 def scene_dir(root: str | Path, split: str, scene_id: int) -> Path:
     """``ROOT/{split}/{scene_id:06d}``."""
     return Path(root) / split / f"{scene_id:06d}"

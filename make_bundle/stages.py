@@ -213,10 +213,11 @@ def sequence(c: Ctx) -> list[str]:
 
 
 def track(c: Ctx) -> list[str]:
+    from chpf.bop import recorded_target_obj_id
     from chpf.track_cli import main
 
     argv = ["--bundle", str(c.out), "--dataset", str(c.d("seq")), "--method", "chpf,poserbpf"]
-    argv += ["--obj-id", str(target_obj_id(c.d("seq"))), "--out", str(c.d("track"))]
+    argv += ["--obj-id", str(recorded_target_obj_id(c.d("seq"))), "--out", str(c.d("track"))]
     argv += ["--seed", str(c.seed)]
     if not c.progress:
         argv.append("--no-progress")
@@ -227,16 +228,6 @@ def track(c: Ctx) -> list[str]:
     print(buf.getvalue(), end="")
     _check(code, "chpf-track")
     return ["track", "track_stdout.txt"]
-
-
-def target_obj_id(seq: Path) -> int:
-    """The obj_id that ``chpf-gen-data sequences`` gave the target in ``seq``: a mesh file
-    without a BOP name has obj_id 0 in its bundle and gets the first id after the built-ins'
-    in the sequence."""
-    from chpf.bop import SEQUENCES_INFO
-
-    info = json.loads((seq / SEQUENCES_INFO).read_text(encoding="utf-8"))
-    return next(int(o["obj_id"]) for o in info["objects"] if o["role"] == "target")
 
 
 STAGES: list[tuple[str, Callable[[Ctx], list[str]]]] = [

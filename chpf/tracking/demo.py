@@ -12,10 +12,9 @@ the target's model. ``--seed`` seeds the filters only.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from chpf.bop import SEQUENCES_INFO
+from chpf.bop import SEQUENCES_INFO, recorded_target_obj_id
 from chpf.bundle import Bundle
 from chpf.errors import BundleError
 
@@ -61,11 +60,10 @@ def demo_dataset(bundle: Bundle) -> Path:
             f"{bundle.path}: the shipped demo sequences show {', '.join(sorted(found))}, this "
             f"bundle is for {name!r}; run chpf-track --dataset on your own data instead"
         )
-    info = json.loads((found[name] / SEQUENCES_INFO).read_text(encoding="utf-8"))
-    target = next(o for o in info["objects"] if o["role"] == "target")
-    if target["obj_id"] != bundle.obj_info.obj_id:
+    target_id = recorded_target_obj_id(found[name])
+    if target_id != bundle.obj_info.obj_id:
         raise BundleError(
             f"{bundle.path}: bundle has obj_id {bundle.obj_info.obj_id}, the demo sequence's "
-            f"{name} has obj_id {target['obj_id']}"
+            f"{name} has obj_id {target_id}"
         )
     return found[name]
