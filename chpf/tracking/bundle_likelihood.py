@@ -36,6 +36,12 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
    step of a local search per weighing that keeps each particle's offset from the grid. The
    moved orientations come back in ``Scores.R``; the filter adopts them.
 
+8. reference (``reference``, for CH-PF and CH-RBPF): on a frame with a detection box, the
+   crop at the box's centre (encoded in the particles' batch) against the whole codebook: the
+   best entry's L and its C (learned, without the box scale: its depth would come from the
+   box) are ``Scores.reference`` (L_ref, C_ref), what a pose can score on this frame's view
+   of the object. Under occlusion they fall with the visible part as the true pose's do.
+
 Particles with z below ``z_min`` (behind or at the camera) get c = -1 (L = 0) and C = 1.
 """
 
@@ -56,7 +62,7 @@ from chpf.tracking.depth_scores import depth_scores
 from chpf.tracking.model_outline import outline_points
 from chpf.tracking.rotation_diffusion import neighbour_table
 from chpf.tracking.timing import ms_since
-from chpf.tracking.types import CodebookScores, Frame, Scores
+from chpf.tracking.types import CodebookScores, Frame, Reference, Scores
 
 
 def box_counter_evidence(rho: np.ndarray, scale: float, shape: str) -> np.ndarray:
@@ -98,7 +104,8 @@ class BundleLikelihood:
     c, see L_FROM_COS). c_mode: "learned" | "depth" | "both" | "none" (C = None). use_depth:
     use frame.depth when given (RGB-D). depth_margin / c_depth_margin: metres. depth_no_data:
     L_depth and C_depth without valid depth pixels. refine_neighbours: grid entries compared
-    by the orientation search (module docstring, item 7; 0 = off).
+    by the orientation search (module docstring, item 7; 0 = off). reference: attach the
+    frame's reference scores (item 8) to Scores and CodebookScores.
     """
 
     def __init__(
@@ -115,6 +122,7 @@ class BundleLikelihood:
         c_box: float | None = None,
         c_box_shape: str = "gauss",
         refine_neighbours: int = 0,
+        reference: bool = False,
     ) -> None:
         if c_mode not in C_MODES:
             raise ConfigError(f"c_mode must be one of {C_MODES}, got {c_mode!r}")
@@ -140,9 +148,10 @@ class BundleLikelihood:
         self.c_box = c_box
         self.c_box_shape = c_box_shape
         self._outline: np.ndarray | None = None  # ``outline``, made on first use
-        # box_centre_cosines' crop rides along in score()'s encoder pass once it has been
-        # asked for: (crop (S,S,3), its AE embedding (1,E)) of the last score(), or None
-        self._cue_in_batch = False
+        self.reference = bool(reference)
+        # the cue box's crop rides along in score()'s encoder pass once it has been asked
+        # for (_cue_embedding): (crop (S,S,3), its AE embedding (1,E)) of the last, or None
+        self._cue_in_batch = self.reference
         self._cue: tuple[np.ndarray, np.ndarray] | None = None
         self.neighbours = (
             neighbour_table(self.grid, refine_neighbours) if refine_neighbours > 1 else None
@@ -207,7 +216,7 @@ class BundleLikelihood:
         t_cue = self._cue_translation(frame) if self._cue_in_batch else None
         crops, emb = self._crops_and_embed(frame, t if t_cue is None else np.vstack([t, t_cue]), ms)
         self._cue = None
-        if t_cue is not None:  # one encoder pass for both (box_centre_cosines)
+        if t_cue is not None:  # one encoder pass for both (_cue_embedding)
             self._cue = (crops[-1].copy(), emb[-1:].copy())
             crops, emb = crops[:-1], emb[:-1]
         need_c = self.c_mode in ("learned", "both")
@@ -255,7 +264,8 @@ class BundleLikelihood:
         if C is not None:
             R_scored = R if R_moved is None else R_moved
             C = np.where(behind, 1.0, self._with_box_scale(C, frame, R_scored, t))
-        return Scores(L=L, w=w, C=C, stage_ms=ms, R=R_moved)
+        ref = self.frame_reference(frame) if self.reference else None
+        return Scores(L=L, w=w, C=C, stage_ms=ms, R=R_moved, reference=ref)
 
     def _search(
         self, emb: np.ndarray, idx: np.ndarray, R_allo: np.ndarray, R_ray: np.ndarray
@@ -323,7 +333,8 @@ class BundleLikelihood:
             R_ego = allocentric_to_egocentric(self.grid.rotations[idx], t)
             return np.where(behind, 1.0, self._with_box_scale(C, frame, R_ego, t))
 
-        return CodebookScores(cos=cos, stage_ms=ms, misaligned=misaligned)
+        ref = self.frame_reference(frame) if self.reference else None
+        return CodebookScores(cos=cos, stage_ms=ms, misaligned=misaligned, reference=ref)
 
     def depth_weight(self, frame: Frame, idx: np.ndarray, t: np.ndarray) -> np.ndarray | None:
         """L_depth (N,) of codebook entries idx (N,) at t (N,3), or None without depth."""
@@ -339,14 +350,31 @@ class BundleLikelihood:
         t0 = self._cue_translation(frame)
         if t0 is None:
             return None
-        self._cue_in_batch, cue, self._cue = True, self._cue, None
-        if cue is not None:  # the crop score() encoded with the particles', when it is this one
-            crop = extract_crops(
-                frame.rgb, self._affines(frame, t0[None], self.spec), cue[0].shape[0]
-            )
-            if np.array_equal(crop[0], cue[0]):
-                return self._all_cosines(cue[1], t0[None])[0], t0
-        return self.codebook_scores(frame, t0[None]).cos[0], t0
+        _, emb = self._cue_embedding(frame, t0)
+        return self._all_cosines(emb, t0[None])[0], t0
+
+    def frame_reference(self, frame: Frame) -> Reference | None:
+        """(L_ref, C_ref) of the frame (module docstring, item 8); None without a detection."""
+        t0 = self._cue_translation(frame) if valid_box(frame.box) is not None else None
+        if t0 is None:
+            return None
+        crop, emb = self._cue_embedding(frame, t0)
+        cos = self._all_cosines(emb, t0[None])[0]
+        k = int(np.argmax(cos))
+        L_ref = likelihood_from_cosine(cos[k : k + 1].astype(np.float64), self.l_from_cos)
+        ch_emb = emb if self.bundle.shares_encoder else self.bundle.ch_embed(crop[None])
+        C_ref = self.bundle.p_misaligned(ch_emb, np.array([k]))
+        return float(L_ref[0]), float(C_ref[0])
+
+    def _cue_embedding(self, frame: Frame, t0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The crop (S,S,3) at the cue translation t0 (3,) and its AE embedding (1,E): the one
+        score() encoded with the particles when it is this crop, else one encoder pass (from
+        then on the crop rides along in score()'s pass)."""
+        self._cue_in_batch = True
+        crop = extract_crops(frame.rgb, self._affines(frame, t0[None], self.spec), self.spec.size)
+        if self._cue is None or not np.array_equal(crop[0], self._cue[0]):
+            self._cue = (crop[0], self.bundle.embed(crop))
+        return self._cue
 
     def _all_cosines(self, emb: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Cosines (N,K) of embeddings emb (N,E) of the crops at t (N,3) with the whole AE

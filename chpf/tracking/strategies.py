@@ -106,6 +106,28 @@ every particle weighed by its normalised importance weight w_i: S_X = sum_i w_i 
 (all alike when the weights collapsed)."""
 
 
+CHPFReference = Literal["none", "detection"]
+CHPF_REFERENCES: tuple[str, ...] = typing.get_args(CHPFReference)
+"""What CH-PF's alpha measures the set's L and C against: "none" their values as they are (the
+paper's); "detection" the frame's own best hypothesis at the detection box (Scores.reference,
+relative_scores): the set is in doubt when it explains the frame worse than that hypothesis
+does, not when the frame shows little of the object. Frames without a detection use the values
+as they are."""
+
+
+def relative_scores(
+    L: np.ndarray, C: np.ndarray, reference: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """L (N,) and C (N,) in [0, 1] relative to the frame's reference (L_ref, C_ref):
+    L' = min(L / L_ref, 1), the share of the best hypothesis' support that a particle has;
+    C' = clip((C - C_ref) / (1 - C_ref), 0, 1), its counter-evidence beyond what even that
+    hypothesis gets (occluders, clutter)."""
+    L_ref, C_ref = reference
+    L_rel = np.minimum(L / max(L_ref, 1e-6), 1.0)
+    C_rel = np.clip((C - C_ref) / max(1.0 - C_ref, 1e-6), 0.0, 1.0)
+    return L_rel, C_rel
+
+
 BoxShape = Literal["gauss", "ramp"]
 BOX_SHAPES: tuple[str, ...] = typing.get_args(BoxShape)
 """How the box-scale counter-evidence C_box grows with r = ln(box side / projected side) > 0
@@ -125,8 +147,9 @@ class CHPFConfig(Section):
     sets alpha); keep_belief, the round(alpha N) particles drawn from phi_cand join N resampled
     from the belief (N + round(alpha N) weighed at the next frame) instead of replacing
     round(alpha N) of them (false = the paper's); temper, how much the set's doubt flattens the
-    likelihood's weights: w^(1 - temper alpha_prev), alpha_prev the previous frame's alpha (0 =
-    the paper's: w as it is)."""
+    likelihood's weights: w^(1 - temper d_prev), d_prev the previous frame's doubt S_C / (S_C +
+    S_L) of the values as they are (0 = the paper's: w as it is); reference, what alpha
+    measures L and C against (CHPF_REFERENCES; "none" = the paper's)."""
 
     c_mode: CMode = "learned"
     sums: CHPFSums = "weighted"
@@ -136,24 +159,29 @@ class CHPFConfig(Section):
     c_weight: float = setting(1.0, ge=0.0)
     keep_belief: bool = True
     temper: float = setting(1.0, ge=0.0, le=1.0)
+    reference: CHPFReference = "detection"
 
 
 class CHPF(Strategy):
     """Counter-Hypothetical PF: alpha = S_C / (S_C + S_L), the sums as chosen by
     ``config.sums`` (CHPF_SUMS; "paper": sum C / (sum C + sum L) over every particle), S_L
-    summing L ** ``config.l_power``.
+    summing L ** ``config.l_power``, L and C relative to the frame's reference when
+    ``config.reference`` asks for it and the frame has one (relative_scores).
 
-    When both sums are 0 (no evidence for nor against any particle) alpha = 1.
+    The same ratio of the values as they are is the set's doubt, which ``temper`` reads: a
+    frame that shows little of the object is one to trust the likelihood less on, not one to
+    reinvigorate on. When both sums are 0 (no evidence for nor against any particle) the ratio
+    is 1.
     """
 
     name = "chpf"
 
     def __init__(self, config: CHPFConfig | None = None) -> None:
         self.config = config or CHPFConfig()
-        self.last_alpha = 0.0  # the previous frame's alpha (``temper``)
+        self.last_doubt = 0.0  # the previous frame's doubt (``temper``)
 
     def reset(self) -> None:
-        self.last_alpha = 0.0
+        self.last_doubt = 0.0
 
     @property
     def keeps_belief(self) -> bool:
@@ -161,16 +189,16 @@ class CHPF(Strategy):
         return self.config.keep_belief
 
     def importance(self, scores: Scores) -> np.ndarray:
-        """w ** (1 - temper alpha_prev) (1 - C) ** c_weight. The evidence against a particle
-        weighs it down: L alone barely tells a pose 0.3 diameters off from one within 0.1
-        (their mean L 0.67 and 0.70 on the development suite), C does (0.43 and 0.10). And a
-        set in doubt trusts the likelihood less: when most of the object is hidden, a sharp w
-        hands the set to whichever particle best matches the visible sliver. C's factor is
+        """w ** (1 - temper d_prev) (1 - C) ** c_weight (d_prev: the last frame's doubt). The
+        evidence against a particle weighs it down: L alone barely tells a pose 0.3 diameters off
+        from one within 0.1 (their mean L 0.67 and 0.70 on the development suite), C does (0.43 and
+        0.10). And a set in doubt trusts the likelihood less: when most of the object is hidden, a
+        sharp w hands the set to whichever particle best matches the visible sliver. C's factor is
         not tempered: flattening it too let doubt feed itself (flat weights, a wider set, more
         doubt) until alpha sat at 0.99 (docs/chpf-ablations.md)."""
         w = scores.w
         if self.config.temper > 0.0:
-            w = np.asarray(w, dtype=np.float64) ** (1.0 - self.config.temper * self.last_alpha)
+            w = np.asarray(w, dtype=np.float64) ** (1.0 - self.config.temper * self.last_doubt)
         if self.config.c_weight <= 0.0 or scores.C is None:
             return w
         keep = np.clip(1.0 - _finite(scores.C), 1e-6, 1.0)
@@ -190,12 +218,19 @@ class CHPF(Strategy):
         if scores.C is None:
             raise ConfigError("CH-PF needs a Counter-Hypothetical likelihood C (none was given)")
         C = _finite(scores.C).clip(min=0.0)
+        L = _finite(scores.L).clip(min=0.0)
         k = self._counts(C.shape[0], weights, fresh)
+        self.last_doubt = self._ratio(k, L, C)
+        if self.config.reference == "none" or scores.reference is None:
+            return self.last_doubt
+        return self._ratio(k, *relative_scores(L, C, scores.reference))
+
+    def _ratio(self, k: np.ndarray, L: np.ndarray, C: np.ndarray) -> float:
+        """S_C / (S_C + S_L) of L (N,), C (N,) counted k (N,) (1 when both sums are 0)."""
         sum_c = float(k @ C)
-        sum_l = float(k @ _finite(scores.L).clip(min=0.0) ** self.config.l_power)
+        sum_l = float(k @ L**self.config.l_power)
         total = sum_c + sum_l
-        self.last_alpha = 1.0 if total <= 0.0 else sum_c / total
-        return self.last_alpha
+        return 1.0 if total <= 0.0 else sum_c / total
 
 
 @dataclass

@@ -137,6 +137,7 @@ class Tracker:
             c_box=cfg.chpf.c_box,
             c_box_shape=cfg.chpf.c_box_shape,
             refine_neighbours=lik.refine_neighbours,
+            reference=cfg.chpf.reference == "detection" and method in ("chpf", "chrbpf"),
         )
         diameter = float(bundle.obj_info.diameter)
         cand = cfg.candidates

@@ -58,6 +58,13 @@ class Frame:
         return self.region.box if self.region is not None and self.region.cue else None
 
 
+Reference = tuple[float, float]
+"""(L_ref, C_ref): L and C of the frame's own best hypothesis, the codebook entry that best
+matches the crop at the detection box's centre (chpf.tracking.bundle_likelihood, item 8): what
+a pose can score on this frame's view of the object, against which CH-PF measures its set's
+(chpf.tracking.strategies.relative_scores)."""
+
+
 @dataclass
 class Scores:
     """What a likelihood returns for N pose hypotheses of one frame.
@@ -68,6 +75,7 @@ class Scores:
     stage_ms: milliseconds spent per stage (e.g. "crop", "encode", "head").
     R: (N,3,3) the orientations that were scored when the likelihood moved them (its
     orientation search), which the filter adopts; None when it scored the given ones.
+    reference: (L_ref, C_ref), the frame's reference scores (``Reference``), or None.
     """
 
     L: np.ndarray
@@ -75,6 +83,7 @@ class Scores:
     C: np.ndarray | None = None
     stage_ms: dict[str, float] = field(default_factory=dict)
     R: np.ndarray | None = None
+    reference: Reference | None = None
 
 
 @dataclass
@@ -84,12 +93,13 @@ class CodebookScores:
     cos: (N, K) cosine similarity of the observed crop at each translation with every codebook
     entry (allocentric orientations of ``grid``). stage_ms as in Scores. misaligned: the
     learned C (N,) of one codebook entry per particle, idx (N,) int -> (N,) (None when the
-    likelihood has no classifier; CH-RBPF calls it).
+    likelihood has no classifier; CH-RBPF calls it). reference: as in Scores.
     """
 
     cos: np.ndarray
     stage_ms: dict[str, float] = field(default_factory=dict)
     misaligned: Callable[[np.ndarray], np.ndarray] | None = None
+    reference: Reference | None = None
 
 
 @runtime_checkable

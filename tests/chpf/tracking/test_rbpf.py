@@ -240,9 +240,9 @@ def test_chrbpf_drawn_particles_join_the_whole_belief_or_replace_part_of_it(sequ
     assert len(filt.t) == len(filt.P) == (50 + n_drawn if keep else 50)
     _, more = track(filt, oracle, sequence, range(11, 12))
     assert more[0].ok and len(filt.weights) == len(filt.t)
-    assert filt.rule.last_alpha == more[0].alpha > 0.0
+    assert filt.rule.last_doubt == more[0].alpha > 0.0
     filt.reset()  # a new sequence: no doubt carried over (chpf.temper)
-    assert filt.rule.last_alpha == 0.0 and not filt.initialised
+    assert filt.rule.last_doubt == 0.0 and not filt.initialised
 
 
 def test_chrbpf_weighs_each_particle_down_by_its_c(sequence):
