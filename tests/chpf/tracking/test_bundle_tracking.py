@@ -258,6 +258,32 @@ def test_box_centre_crop_rides_along_in_the_particles_encoder_pass(
     assert sizes == [9, 9, 1, 9, 1]
 
 
+def test_the_frames_reference_is_the_best_codebook_entry_at_the_detection_box(
+    bundle, rendered_sequence
+):
+    """reference=True: Scores and CodebookScores carry (L_ref, C_ref), the best codebook entry's
+    L for the crop at the detection box's centre and the classifier's C of that crop and entry;
+    None without a detection (a search region's box is the estimate's own) and when off."""
+    from chpf.crops import crop_affines, extract_crops
+    from chpf.tracking.types import Region
+
+    seq = rendered_sequence
+    frame = Frame(seq.rgb[3], None, seq.K, seq.box(3))
+    R, t = _hypotheses(seq, 3, np.random.default_rng(0), n=4)["truth"]
+    like = BundleLikelihood(bundle, reference=True)
+    s = like.score(frame, R, t)
+    cos, t0 = BundleLikelihood(bundle).box_centre_cosines(frame)
+    k = int(np.argmax(cos))
+    crop = extract_crops(frame.rgb, crop_affines(t0[None], seq.K, bundle.spec), bundle.spec.size)
+    emb = bundle.embed(crop) if bundle.shares_encoder else bundle.ch_embed(crop)
+    assert s.reference == pytest.approx((max(cos[k], 0.0), bundle.p_misaligned(emb, [k])[0]))
+    assert s.reference[0] > 0.6 and s.reference[1] < 0.5  # the whole box: recognised, aligned
+    assert like.codebook_scores(frame, t).reference == pytest.approx(s.reference)
+    region = Region(box=seq.box(3), area=seq.box(3), window=seq.box(3))
+    assert like.score(Frame(seq.rgb[3], None, seq.K, None, region), R, t).reference is None
+    assert BundleLikelihood(bundle).score(frame, R, t).reference is None
+
+
 def _track(tracker, seq, modality="rgb", frames=None, collapse_at=None, wall=None):
     """Errors (T,3) against the truth, columns ADD-S and ADD in diameters and the rotation error
     in degrees (inf without an estimate), and the TrackResults of ``tracker`` on ``seq``; at
@@ -581,10 +607,10 @@ def test_shipped_bundle_chpf_alpha_rises_after_a_forced_collapse_and_the_estimat
     """Default config, seeds 0-2: CH-PF tracks with alpha near 0, every particle is then put on
     one wrong pose (90 deg off, 0.3 d aside) at frame 30: alpha rises above 0.8, the
     orientation comes back, the position comes back onto the object's ray and alpha falls
-    again. Measured, seeds 0 / 1 / 2: over frames 20-29 ADD-S 0.21 / 0.33 / 0.08 d at 0.89 /
-    0.83 / 0.95 x the true depth, rotation error 11.6 / 15.7 / 4.8 deg, alpha below 0.02;
-    alpha 0.93 / 0.94 / 0.91 at the collapse and 0.002-0.003 over frames 50-59; after frame 40
-    median rotation error 2.6 / 3.0 / 2.4 deg and ADD-S 0.10 / 0.19 / 0.09 d. Depth is the
+    again. Measured, seeds 0 / 1 / 2 (alpha against the frame's reference, the default): over
+    frames 20-29 ADD-S 0.09 / 0.25 / 0.07 d at 0.94 / 0.87 / 0.97 x the true depth, alpha
+    about 0.01; alpha 0.93 at the collapse and 0.001-0.004 over frames 50-59; after frame 40
+    median rotation error 3.2 / 2.2 / 3.3 deg and ADD-S 0.05 / 0.10 / 0.10 d. Depth is the
     weak axis: the box-scale C counts only a hypothesis too far away (a nearer one is what
     occlusion looks like), and on this clean render the default settles too near before the
     collapse (with the ramp it replaced, margin 0.2: 0.96 / 1.05 / 0.93 x, ADD-S 0.08 / 0.10 /

@@ -9,6 +9,7 @@ from chpf.errors import ConfigError
 from chpf.tracking import CHPF, E2E, SRL, Annealing, AugMCL, FixedRate, NoReinvigoration, Scores
 from chpf.tracking.oracle import OracleLikelihood
 from chpf.tracking.strategies import (
+    CHPF_REFERENCES,
     CHPF_SUMS,
     AnnealingConfig,
     AugMCLConfig,
@@ -16,6 +17,7 @@ from chpf.tracking.strategies import (
     E2EConfig,
     FixedConfig,
     SRLConfig,
+    relative_scores,
 )
 from chpf.tracking.types import Frame
 
@@ -134,6 +136,33 @@ def test_chpf_weighted_sums_are_expectations_under_the_importance_weights():
     assert chpf("weighted").alpha(scores(), W_FIXED, FRESH) == pytest.approx(e_c / (e_c + e_l))
     # collapsed weights (None): every particle counts alike
     assert chpf("weighted").alpha(scores(), None, FRESH) == pytest.approx(3.0 / 4.8)
+
+
+def test_chpf_alpha_measures_the_set_against_the_frames_reference():
+    """reference "detection" (the default): alpha is the ratio of L' = min(L / L_ref, 1) and
+    C' = clip((C - C_ref) / (1 - C_ref), 0, 1); temper reads the ratio of L and C as they are;
+    a frame without a reference (no detection) and reference "none" use those values."""
+    assert CHPFConfig().reference == "detection" and CHPF_REFERENCES == ("none", "detection")
+    L_rel, C_rel = relative_scores(L_FIXED, C_FIXED, (0.5, 0.2))
+    np.testing.assert_allclose(L_rel, [1.0, 1.0, 0.2, 0.0, 0.6])
+    np.testing.assert_allclose(C_rel, [0.0, 0.25, 0.875, 1.0, 0.5])
+    framed = Scores(L=L_FIXED, w=L_FIXED.copy(), C=C_FIXED, reference=(0.5, 0.2))
+    rule = chpf("paper")
+    assert rule.alpha(framed) == pytest.approx(2.625 / (2.625 + 2.8))
+    doubt = 3.0 / 4.8  # the values as they are
+    assert rule.last_doubt == pytest.approx(doubt)
+    np.testing.assert_allclose(rule.importance(framed), L_FIXED ** (1.0 - doubt) * (1.0 - C_FIXED))
+    assert rule.alpha(scores()) == pytest.approx(doubt)  # a frame without a detection
+    as_they_are = CHPF(CHPFConfig(sums="paper", l_power=1.0, reference="none"))
+    assert as_they_are.alpha(framed) == pytest.approx(doubt)
+    # occluded: a set that explains the frame as well as its own best hypothesis has no doubt,
+    # however low its L and high its C; lost: the box's crop is explained, the set is not
+    weights = np.full(3, 1.0 / 3.0)
+    occluded = Scores(L=np.full(3, 0.3), w=np.ones(3), C=np.full(3, 0.6), reference=(0.3, 0.6))
+    lost = Scores(L=np.full(3, 0.3), w=np.ones(3), C=np.full(3, 0.6), reference=(0.8, 0.05))
+    assert CHPF().alpha(occluded, weights) == 0.0
+    assert CHPF().alpha(lost, weights) > 0.9
+    assert CHPF(CHPFConfig(reference="none")).alpha(occluded, weights) > 0.9
 
 
 def test_chpf_without_c_is_a_config_error():
