@@ -149,7 +149,7 @@ class BundleLikelihood:
         self.c_box_shape = c_box_shape
         self._outline: np.ndarray | None = None  # ``outline``, made on first use
         self.reference = bool(reference)
-        # the cue box's crop rides along in score()'s encoder pass once it has been asked
+        # the cue box's crop rides along in the particles' encoder pass once it has been asked
         # for (_cue_embedding): (crop (S,S,3), its AE embedding (1,E)) of the last, or None
         self._cue_in_batch = self.reference
         self._cue: tuple[np.ndarray, np.ndarray] | None = None
@@ -182,14 +182,20 @@ class BundleLikelihood:
     def _crops_and_embed(
         self, frame: Frame, t: np.ndarray, ms: dict[str, float]
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Crops (N,S,S,3) at t (N,3) and their AE embeddings (N,E); times into ``ms``."""
+        """Crops (N,S,S,3) at t (N,3) and their AE embeddings (N,E); times into ``ms``. Once
+        asked for (_cue_embedding), the cue box's crop rides along in the same encoder pass."""
+        t_cue = self._cue_translation(frame) if self._cue_in_batch else None
+        t_all = t if t_cue is None else np.vstack([t, t_cue])
         t0 = time.perf_counter()
-        crops = extract_crops(frame.rgb, self._affines(frame, t, self.spec), self.spec.size)
+        crops = extract_crops(frame.rgb, self._affines(frame, t_all, self.spec), self.spec.size)
         ms["crop"] = ms_since(t0)
         t0 = time.perf_counter()
         emb = self.bundle.embed(crops)
         ms["encode"] = ms_since(t0)
-        return crops, emb
+        if t_cue is None:
+            return crops, emb
+        self._cue = (crops[-1].copy(), emb[-1:].copy())
+        return crops[:-1], emb[:-1]
 
     def _depth_crops(self, frame: Frame, t: np.ndarray) -> np.ndarray:
         aff = self._affines(frame, t, self.depth_spec)
@@ -213,12 +219,7 @@ class BundleLikelihood:
         """Scores of N hypotheses R (N,3,3), t (N,3) metres (see module docstring)."""
         ms: dict[str, float] = {}
         t = np.asarray(t, dtype=np.float64)
-        t_cue = self._cue_translation(frame) if self._cue_in_batch else None
-        crops, emb = self._crops_and_embed(frame, t if t_cue is None else np.vstack([t, t_cue]), ms)
-        self._cue = None
-        if t_cue is not None:  # one encoder pass for both (_cue_embedding)
-            self._cue = (crops[-1].copy(), emb[-1:].copy())
-            crops, emb = crops[:-1], emb[:-1]
+        crops, emb = self._crops_and_embed(frame, t, ms)
         need_c = self.c_mode in ("learned", "both")
         if need_c and not self.bundle.shares_encoder:
             t0 = time.perf_counter()
@@ -368,8 +369,8 @@ class BundleLikelihood:
 
     def _cue_embedding(self, frame: Frame, t0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The crop (S,S,3) at the cue translation t0 (3,) and its AE embedding (1,E): the one
-        score() encoded with the particles when it is this crop, else one encoder pass (from
-        then on the crop rides along in score()'s pass)."""
+        encoded with the particles' crops when it is this crop, else one encoder pass (from
+        then on the crop rides along in the particles' pass, _crops_and_embed)."""
         self._cue_in_batch = True
         crop = extract_crops(frame.rgb, self._affines(frame, t0[None], self.spec), self.spec.size)
         if self._cue is None or not np.array_equal(crop[0], self._cue[0]):
