@@ -180,9 +180,18 @@ class CandidateSampler:
         v = area[1] + min(by, 0.5 * area[3]) + span_v * rng.random(n)
         return u, v, obj, area
 
-    def translations(self, n: int, frame: Frame, rng: np.random.Generator) -> np.ndarray:
-        """n translations t (n,3) from phi_cand (what PoseRBPF's particles are); the frame
-        needs a valid box or a search region."""
+    def translations(
+        self,
+        n: int,
+        frame: Frame,
+        rng: np.random.Generator,
+        estimate_t: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """n translations t (n,3) from phi_cand (what PoseRBPF's particles are) in the box of
+        ``box_for(frame, estimate_t)``; the frame needs a valid box or a search region."""
+        box = self.box_for(frame, estimate_t)
+        if box != valid_box(frame.box):
+            frame = replace(frame, box=box)
         u, v, box, area = self._centres(n, frame, rng)
         K = np.asarray(frame.K, dtype=np.float64)
         lo, hi = self._z_rgb_range(box, K)

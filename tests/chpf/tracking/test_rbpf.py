@@ -270,3 +270,27 @@ def test_neighbour_table_lists_each_entry_first_then_its_nearest():
     assert all(len(set(row)) == 6 for row in table)
     angles = geodesic_angle(GRID.rotations[table[:, 1:]], GRID.rotations[:, None])
     assert angles.max() < 4 * grid_spacing(GRID)
+
+
+def test_rbpf_draws_in_the_belief_box_when_the_detection_is_its_visible_part():
+    """candidates.occluded_box acts on the Rao-Blackwellised filters too (PoseRBPF's resets,
+    PoseRBPF++'s share, CH-RBPF's draws): a detection inside the belief's projected box and
+    smaller by more than 10 % gives translations at the belief's place and scale (they came
+    from the detection's box, whose smaller size put them too far away)."""
+    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+    frame = Frame(np.zeros((240, 320, 3), np.uint8), None, K, (130.0, 100.0, 40.0, 50.0))
+    filt = RaoBlackwellisedFilter(
+        OracleLikelihood(grid=GRID),
+        n_particles=50,
+        candidates=CandidateSampler(box_extent=0.2, occluded_box=True),
+        rng=np.random.default_rng(0),
+    )
+    filt.estimate = (np.eye(3), np.array([0.0, 0.0, 1.0]))  # belief box: 60 px, centre (160, 120)
+    t, P = filt._draw(frame, 400)
+    assert P.shape == (400, len(GRID.rotations))
+    # z uniform in z_box_factors (0.75, 1.35) x z_box: the belief's 60 px give z_box 1.0 m
+    assert t[:, 2].mean() == pytest.approx(1.05, abs=0.04)
+    u = K[0, 0] * t[:, 0] / t[:, 2] + K[0, 2]
+    assert u.min() > 130.0 and u.max() < 190.0
+    detection = CandidateSampler(box_extent=0.2).translations(400, frame, np.random.default_rng(0))
+    assert detection[:, 2].mean() == pytest.approx(1.26, abs=0.05)  # 50 px: z_box 1.2 m
