@@ -126,6 +126,11 @@ class CandidateSampler:
         )
         return bel if inside and max(det[2], det[3]) < 0.9 * bel[2] else det
 
+    def _framed(self, frame: Frame, estimate_t: np.ndarray | None) -> Frame:
+        """``frame`` with the box phi_cand draws from (``box_for``) as its box."""
+        box = self.box_for(frame, estimate_t)
+        return frame if box == valid_box(frame.box) else replace(frame, box=box)
+
     def _z_rgb_range(self, box: Box, K: np.ndarray) -> tuple[float, float]:
         """The RGB rule's depth range (lo, hi) metres for a box (module docstring)."""
         if self.box_extent is not None and self.box_extent > 0:
@@ -189,10 +194,7 @@ class CandidateSampler:
     ) -> np.ndarray:
         """n translations t (n,3) from phi_cand (what PoseRBPF's particles are) in the box of
         ``box_for(frame, estimate_t)``; the frame needs a valid box or a search region."""
-        box = self.box_for(frame, estimate_t)
-        if box != valid_box(frame.box):
-            frame = replace(frame, box=box)
-        u, v, box, area = self._centres(n, frame, rng)
+        u, v, box, area = self._centres(n, self._framed(frame, estimate_t), rng)
         K = np.asarray(frame.K, dtype=np.float64)
         lo, hi = self._z_rgb_range(box, K)
         z_rgb = rng.uniform(lo, hi, n)
@@ -214,9 +216,7 @@ class CandidateSampler:
         """n poses (R (n,3,3), t (n,3)) from phi_cand; the frame needs a valid box or a search
         region.
         ``estimate_t`` (3,): the belief's translation (``box_for``), None when there is none."""
-        box = self.box_for(frame, estimate_t)
-        if box != valid_box(frame.box):
-            frame = replace(frame, box=box)
+        frame = self._framed(frame, estimate_t)  # the rotation source reads its box too
         t = self.translations(n, frame, rng)
         if self.rotations is None:
             return random_rotations(n, rng), t

@@ -29,7 +29,7 @@ import numpy as np
 from chpf.config_schema import Invalid, Section, setting
 from chpf.errors import ConfigError
 from chpf.geometry import perturb_rotations
-from chpf.tracking.types import Frame, Scores, SingleFrameEstimator
+from chpf.tracking.types import Frame, Reference, Scores, SingleFrameEstimator
 
 
 def _finite(x: np.ndarray) -> np.ndarray:
@@ -116,7 +116,7 @@ as they are."""
 
 
 def relative_scores(
-    L: np.ndarray, C: np.ndarray, reference: tuple[float, float]
+    L: np.ndarray, C: np.ndarray, reference: Reference
 ) -> tuple[np.ndarray, np.ndarray]:
     """L (N,) and C (N,) in [0, 1] relative to the frame's reference (L_ref, C_ref):
     L' = min(L / L_ref, 1), the share of the best hypothesis' support that a particle has;
