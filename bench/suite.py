@@ -1,9 +1,10 @@
 """Bench suites: what to build and run, as a typed config (chpf.config_schema).
 
-A suite is a YAML file of the sections below; ``default``, ``dev``, ``dev2`` and ``quick`` ship in
-``bench/suites/``. Unknown keys, wrong types and out-of-range values are refused in one line
-naming the file and the key. The resolved suite (after command-line overrides) is recorded in
-the output folder as ``suite.json``: a rerun, a shard and a merge must agree with it.
+A suite is a YAML file of the sections below; ``default``, ``dev``, ``dev2``, ``dev3`` and
+``quick`` ship in ``bench/suites/``. Unknown keys, wrong types and out-of-range values are
+refused in one line naming the file and the key. The resolved suite (after command-line
+overrides) is recorded in the output folder as ``suite.json``: a rerun, a shard and a merge
+must agree with it.
 """
 
 from __future__ import annotations

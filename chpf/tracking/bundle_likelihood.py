@@ -29,6 +29,15 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
    of the development suite's unoccluded frames the mean L is 0.747 at the true depth, 0.742
    at 1.03 x and 0.708 at 1.1 x it, C 0.021, 0.024, 0.040.
 
+   Edge (``c_edge``, a margin m, None = off): the visible part of an object lies inside its
+   projection, so a hypothesis whose projected outline box leaves an edge of the detection box
+   outside it, by o (the largest overshoot, as a fraction of the projected side), is
+   contradicted whatever the occlusion: C_edge = ``edge_counter_evidence(o, m)`` = clip((o -
+   m) / m, 0, 1), none within the detector's noise. It is ``Scores.C_edge``, which CH-PF's
+   alpha counts and its weights do not: a containment test favours hypotheses that project
+   larger (too near), which neither network nor C_box contradicts, so in the weights it
+   pulled the set's depth nearer (docs/chpf-ablations.md).
+
 7. orientation search (``refine_neighbours`` k > 1, 0 = off): before steps 3-4, each particle's
    nearest entry and its k - 1 nearest grid neighbours are compared with its crop's embedding
    (the crop depends on t only, so no more encoder passes), and the particle's orientation moves
@@ -61,6 +70,7 @@ from chpf.tracking.config import BOX_SHAPES, C_MODES, L_FROM_COS
 from chpf.tracking.depth_scores import depth_scores
 from chpf.tracking.model_outline import outline_points
 from chpf.tracking.rotation_diffusion import neighbour_table
+from chpf.tracking.strategies import either
 from chpf.tracking.timing import ms_since
 from chpf.tracking.types import CodebookScores, Frame, Reference, Scores
 
@@ -73,6 +83,13 @@ def box_counter_evidence(rho: np.ndarray, scale: float, shape: str) -> np.ndarra
         return np.clip((rho - 1.0 - scale) / scale, 0.0, 1.0)
     excess = np.maximum(np.log(rho), 0.0) / scale
     return 1.0 - np.exp(-0.5 * excess**2)
+
+
+def edge_counter_evidence(overshoot: np.ndarray, margin: float) -> np.ndarray:
+    """C_edge (N,) in [0, 1] of overshoots (N,) (the largest distance by which an edge of the
+    detection box lies outside a hypothesis's projected box, over the projected side; module
+    docstring, item 6): clip((overshoot - margin) / margin, 0, 1)."""
+    return np.clip((overshoot - margin) / margin, 0.0, 1.0)
 
 
 def likelihood_from_cosine(c: np.ndarray, mode: str) -> np.ndarray:
@@ -121,6 +138,7 @@ class BundleLikelihood:
         z_min: float = 0.05,
         c_box: float | None = None,
         c_box_shape: str = "gauss",
+        c_edge: float | None = None,
         refine_neighbours: int = 0,
         reference: bool = False,
     ) -> None:
@@ -147,6 +165,7 @@ class BundleLikelihood:
         self.z_min = float(z_min)
         self.c_box = c_box
         self.c_box_shape = c_box_shape
+        self.c_edge = c_edge
         self._outline: np.ndarray | None = None  # ``outline``, made on first use
         self.reference = bool(reference)
         # the cue box's crop rides along in the particles' encoder pass once it has been asked
@@ -262,11 +281,12 @@ class BundleLikelihood:
             C = np.full(t.shape[0], self.depth_no_data)  # an RGB-D run's frame without depth
         elif self.c_mode == "both" and C is not None:
             C = 0.5 * (C + self.depth_no_data)
+        C_edge = None
         if C is not None:
-            R_scored = R if R_moved is None else R_moved
-            C = np.where(behind, 1.0, self._with_box_scale(C, frame, R_scored, t))
+            C_box, C_edge = self._box_evidence(frame, R if R_moved is None else R_moved, t)
+            C = np.where(behind, 1.0, either(C, C_box))
         ref = self.frame_reference(frame) if self.reference else None
-        return Scores(L=L, w=w, C=C, stage_ms=ms, R=R_moved, reference=ref)
+        return Scores(L=L, w=w, C=C, stage_ms=ms, R=R_moved, reference=ref, C_edge=C_edge)
 
     def _search(
         self, emb: np.ndarray, idx: np.ndarray, R_allo: np.ndarray, R_ray: np.ndarray
@@ -293,27 +313,36 @@ class BundleLikelihood:
             self._outline = outline_points(self.bundle)
         return self._outline
 
-    def _projected_side(self, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> np.ndarray:
-        """The larger side (N,) pixels of the box of the model's outline points projected at
+    def _projected_boxes(self, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> np.ndarray:
+        """Boxes (N,4) pixels (x0, y0, x1, y1) of the model's outline points projected at
         poses R (N,3,3), t (N,3) metres (depths clamped to z_min)."""
         cam = np.matmul(R, self.outline.T) + t[:, :, None]  # (N,3,M)
         z = np.maximum(cam[:, 2], self.z_min)
-        width = K[0, 0] * np.ptp(cam[:, 0] / z, axis=1)  # the principal point cancels out
-        height = K[1, 1] * np.ptp(cam[:, 1] / z, axis=1)
-        return np.maximum(width, height)
+        u = K[0, 0] * cam[:, 0] / z + K[0, 2]
+        v = K[1, 1] * cam[:, 1] / z + K[1, 2]
+        return np.stack([u.min(axis=1), v.min(axis=1), u.max(axis=1), v.max(axis=1)], axis=1)
 
-    def _with_box_scale(
-        self, C: np.ndarray, frame: Frame, R: np.ndarray, t: np.ndarray
-    ) -> np.ndarray:
-        """C (N,) combined with the box-scale counter-evidence of poses R (N,3,3), t (N,3)
-        (module docstring, item 6); C itself when ``c_box`` is None or there is no box."""
+    def _box_evidence(
+        self, frame: Frame, R: np.ndarray, t: np.ndarray
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """C_box and C_edge (N,) of poses R (N,3,3), t (N,3) against the detection box (module
+        docstring, item 6); each None when off or without a box."""
         box = valid_box(frame.box)
-        if self.c_box is None or box is None:
-            return C
-        projected = np.maximum(self._projected_side(R, t, np.asarray(frame.K)), 1e-6)
-        rho = max(box[2], box[3]) / projected
-        c_box = box_counter_evidence(rho, self.c_box, self.c_box_shape)
-        return 1.0 - (1.0 - C) * (1.0 - c_box)
+        if box is None or (self.c_box is None and self.c_edge is None):
+            return None, None
+        proj = self._projected_boxes(R, t, np.asarray(frame.K))
+        side = np.maximum(np.maximum(proj[:, 2] - proj[:, 0], proj[:, 3] - proj[:, 1]), 1e-6)
+        c_box = c_edge = None
+        if self.c_box is not None:
+            rho = max(box[2], box[3]) / side
+            c_box = box_counter_evidence(rho, self.c_box, self.c_box_shape)
+        if self.c_edge is not None:
+            x, y, w, h = box
+            edges_out = np.stack(
+                [proj[:, 0] - x, proj[:, 1] - y, x + w - proj[:, 2], y + h - proj[:, 3]], axis=1
+            )
+            c_edge = edge_counter_evidence(edges_out.max(axis=1) / side, self.c_edge)
+        return c_box, c_edge
 
     # ------------------------------------------------------------------ Rao-Blackwellised
     def codebook_scores(self, frame: Frame, t: np.ndarray) -> CodebookScores:
@@ -331,11 +360,19 @@ class BundleLikelihood:
             idx = np.asarray(idx)
             ch_emb = emb if self.bundle.shares_encoder else self.bundle.ch_embed(crops)
             C = self.bundle.p_misaligned(ch_emb, idx).astype(np.float64)
-            R_ego = allocentric_to_egocentric(self.grid.rotations[idx], t)
-            return np.where(behind, 1.0, self._with_box_scale(C, frame, R_ego, t))
+            C_box, _ = self._box_evidence(frame, self._entry_poses(idx, t), t)
+            return np.where(behind, 1.0, either(C, C_box))
+
+        def edge(idx: np.ndarray) -> np.ndarray | None:
+            """C_edge (N,) of entries idx (N,) at these translations, None when off."""
+            return self._box_evidence(frame, self._entry_poses(idx, t), t)[1]
 
         ref = self.frame_reference(frame) if self.reference else None
-        return CodebookScores(cos=cos, stage_ms=ms, misaligned=misaligned, reference=ref)
+        return CodebookScores(cos=cos, stage_ms=ms, misaligned=misaligned, reference=ref, edge=edge)
+
+    def _entry_poses(self, idx: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Egocentric orientations (N,3,3) of codebook entries idx (N,) seen at t (N,3)."""
+        return allocentric_to_egocentric(self.grid.rotations[np.asarray(idx)], t)
 
     def depth_weight(self, frame: Frame, idx: np.ndarray, t: np.ndarray) -> np.ndarray | None:
         """L_depth (N,) of codebook entries idx (N,) at t (N,3), or None without depth."""

@@ -68,5 +68,7 @@ class CHRBPF(RaoBlackwellisedFilter):
         weights = Weights.from_weights(self.rule.importance(Scores(L=L, w=weights.W, C=C)))
         W = weights.W  # positive: (1 - C) and the tempering keep every weight above 0
         assert W is not None
-        alpha = self.rule.alpha(Scores(L=L, w=W, C=C, reference=cs.reference), W, self.fresh)
+        C_edge = cs.edge(k) if cs.edge is not None else None
+        scores = Scores(L=L, w=W, C=C, reference=cs.reference, C_edge=C_edge)
+        alpha = self.rule.alpha(scores, W, self.fresh)
         return Weighed(weights, float(np.clip(alpha, 0.0, 1.0)), float(L.sum()), float(C.sum()))

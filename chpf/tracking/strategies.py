@@ -115,6 +115,12 @@ does, not when the frame shows little of the object. Frames without a detection 
 as they are."""
 
 
+def either(C: np.ndarray, other: np.ndarray | None) -> np.ndarray:
+    """Counter-evidence (N,) from two independent sources in [0, 1]: 1 - (1 - C)(1 - other);
+    C itself when other is None."""
+    return C if other is None else 1.0 - (1.0 - C) * (1.0 - other)
+
+
 def relative_scores(
     L: np.ndarray, C: np.ndarray, reference: Reference
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -142,7 +148,8 @@ class CHPFConfig(Section):
     and both need RGB-D); sums, which particles alpha's sums run over (CHPF_SUMS); l_power,
     the exponent p of L in those sums (S_L sums L^p; 1 = the paper's L); c_box, the scale (s or
     m) of the box-scale counter-evidence added to C (None = none; chpf.tracking.bundle_likelihood)
-    and c_box_shape its shape (BOX_SHAPES);
+    and c_box_shape its shape (BOX_SHAPES); c_edge, the margin of the box-edge counter-evidence
+    (Scores.C_edge; None = off), which alpha counts and the weights do not;
     c_weight, the exponent k of the importance weights w (1 - C)^k (0 = the paper's: C only
     sets alpha); keep_belief, the round(alpha N) particles drawn from phi_cand join N resampled
     from the belief (N + round(alpha N) weighed at the next frame) instead of replacing
@@ -156,6 +163,7 @@ class CHPFConfig(Section):
     l_power: float = setting(3.0, gt=0.0)
     c_box: float | None = setting(0.1, gt=0.0)
     c_box_shape: BoxShape = "gauss"
+    c_edge: float | None = setting(0.2, gt=0.0)
     c_weight: float = setting(1.0, ge=0.0)
     keep_belief: bool = True
     temper: float = setting(1.0, ge=0.0, le=1.0)
@@ -217,7 +225,7 @@ class CHPF(Strategy):
     ) -> float:
         if scores.C is None:
             raise ConfigError("CH-PF needs a Counter-Hypothetical likelihood C (none was given)")
-        C = _finite(scores.C).clip(min=0.0)
+        C = either(_finite(scores.C).clip(min=0.0), scores.C_edge)
         L = _finite(scores.L).clip(min=0.0)
         k = self._counts(C.shape[0], weights, fresh)
         self.last_doubt = self._ratio(k, L, C)

@@ -136,6 +136,7 @@ class Tracker:
             depth_no_data=lik.depth_no_data,
             c_box=cfg.chpf.c_box,
             c_box_shape=cfg.chpf.c_box_shape,
+            c_edge=cfg.chpf.c_edge,
             refine_neighbours=lik.refine_neighbours,
             reference=cfg.chpf.reference == "detection" and method in ("chpf", "chrbpf"),
         )

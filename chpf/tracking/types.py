@@ -76,6 +76,8 @@ class Scores:
     R: (N,3,3) the orientations that were scored when the likelihood moved them (its
     orientation search), which the filter adopts; None when it scored the given ones.
     reference: (L_ref, C_ref), the frame's reference scores (``Reference``), or None.
+    C_edge: (N,) in [0, 1] the box-edge counter-evidence (chpf.tracking.bundle_likelihood,
+    item 6), which counts in CH-PF's alpha but not in C's weighing, or None.
     """
 
     L: np.ndarray
@@ -84,6 +86,7 @@ class Scores:
     stage_ms: dict[str, float] = field(default_factory=dict)
     R: np.ndarray | None = None
     reference: Reference | None = None
+    C_edge: np.ndarray | None = None
 
 
 @dataclass
@@ -93,13 +96,15 @@ class CodebookScores:
     cos: (N, K) cosine similarity of the observed crop at each translation with every codebook
     entry (allocentric orientations of ``grid``). stage_ms as in Scores. misaligned: the
     learned C (N,) of one codebook entry per particle, idx (N,) int -> (N,) (None when the
-    likelihood has no classifier; CH-RBPF calls it). reference: as in Scores.
+    likelihood has no classifier; CH-RBPF calls it). reference: as in Scores. edge: C_edge
+    (N,) of one entry per particle (Scores.C_edge), idx (N,) int -> (N,) or None when off.
     """
 
     cos: np.ndarray
     stage_ms: dict[str, float] = field(default_factory=dict)
     misaligned: Callable[[np.ndarray], np.ndarray] | None = None
     reference: Reference | None = None
+    edge: Callable[[np.ndarray], np.ndarray | None] | None = None
 
 
 @runtime_checkable

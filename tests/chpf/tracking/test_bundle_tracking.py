@@ -23,6 +23,7 @@ from chpf.objects import get_object
 from chpf.tracking.bundle_likelihood import (
     BundleLikelihood,
     box_counter_evidence,
+    edge_counter_evidence,
     likelihood_from_cosine,
 )
 from chpf.tracking.codebook_candidates import CodebookRotations
@@ -130,6 +131,55 @@ def test_box_counter_evidence_gauss_counts_depth_errors_inside_the_ramps_margin(
     np.testing.assert_allclose(gauss, [0.0, 0.0, *expected])
     assert 0.3 < gauss[2] < 0.4 and gauss[3] > 0.9
     np.testing.assert_allclose(box_counter_evidence(rho, 0.2, "ramp"), [0.0, 0.0, 0.0, 0.25])
+
+
+def test_edge_counter_evidence_is_a_ramp_above_its_margin():
+    overshoot = np.array([-0.3, 0.0, 0.2, 0.3, 0.4, 0.9])
+    np.testing.assert_allclose(edge_counter_evidence(overshoot, 0.2), [0, 0, 0, 0.5, 1, 1])
+
+
+def test_c_edge_counts_a_hypothesis_that_leaves_the_detection_box_outside(
+    bundle, rendered_sequence
+):
+    """The truth moved sideways by 0.3 and 0.6 of the box's side leaves about that much of the
+    detection box outside its projection: C_edge between 0 and 1, and 1 (margin 0.2). The
+    truth, the truth nearer (a larger projection) and the truth against a box of its left half
+    (the visible part of an occluded object) contain the box: C_edge 0. C_edge stays out of C
+    (the weights), and there is none without a box or with c_edge off."""
+    seq = rendered_sequence
+    box = seq.box(0)
+    frame = Frame(seq.rgb[0], None, seq.K, box)
+    side_m = max(box[2], box[3]) * seq.t[0, 2] / seq.K[0, 0]
+    t = np.repeat(seq.t[:1], 4, 0)
+    t[1, 0] += 0.3 * side_m
+    t[2, 0] -= 0.6 * side_m
+    t[3] *= 0.8
+    R = np.repeat(seq.R[:1], 4, 0)
+    edged = BundleLikelihood(bundle, c_edge=0.2)
+    s = edged.score(frame, R, t)
+    assert s.C_edge is not None
+    assert s.C_edge[0] == 0.0 and s.C_edge[3] == 0.0
+    assert 0.2 < s.C_edge[1] < 1.0 and s.C_edge[2] == 1.0
+    np.testing.assert_allclose(s.C, BundleLikelihood(bundle).score(frame, R, t).C)
+    left_half = Frame(seq.rgb[0], None, seq.K, (box[0], box[1], box[2] / 2, box[3]))
+    assert edged.score(left_half, R[:1], t[:1]).C_edge[0] == 0.0
+    no_box = Frame(seq.rgb[0], None, seq.K, None)
+    assert edged.score(no_box, R, t).C_edge is None
+    assert BundleLikelihood(bundle).score(frame, R, t).C_edge is None
+
+
+def test_codebook_scores_give_the_box_edge_evidence_of_an_entry(bundle, rendered_sequence):
+    """CH-RBPF's C_edge: the truth's nearest entry at the true translation contains the box,
+    at a translation 0.6 box sides aside it does not."""
+    seq = rendered_sequence
+    box = seq.box(0)
+    frame = Frame(seq.rgb[0], None, seq.K, box)
+    aside = seq.t[0] + [0.6 * max(box[2], box[3]) * seq.t[0, 2] / seq.K[0, 0], 0.0, 0.0]
+    t = np.stack([seq.t[0], aside])
+    like = BundleLikelihood(bundle, c_edge=0.2)
+    entry = bundle.nearest(egocentric_to_allocentric(seq.R[:1], seq.t[:1]))
+    np.testing.assert_allclose(like.codebook_scores(frame, t).edge(np.repeat(entry, 2)), [0, 1])
+    assert BundleLikelihood(bundle).codebook_scores(frame, t).edge(np.repeat(entry, 2)) is None
 
 
 def test_l_from_cos_maps_the_cosine_to_the_unnormalised_likelihood(bundle, rendered_sequence):

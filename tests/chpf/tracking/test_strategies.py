@@ -165,6 +165,21 @@ def test_chpf_alpha_measures_the_set_against_the_frames_reference():
     assert CHPF(CHPFConfig(reference="none")).alpha(occluded, weights) > 0.9
 
 
+def test_chpf_alpha_counts_the_box_edge_evidence_and_the_weights_do_not():
+    """C_edge joins C in alpha's sums (1 - (1 - C)(1 - C_edge)), in the reference's C' too, and
+    stays out of the importance weights; the default margin is 0.2."""
+    assert CHPFConfig().c_edge == 0.2
+    edge = np.array([0.0, 0.5, 0.0, 0.0, 1.0])
+    edged = Scores(L=L_FIXED, w=L_FIXED.copy(), C=C_FIXED, C_edge=edge)
+    rule = chpf("paper")
+    sum_c = C_FIXED.sum() + 0.6 * 0.5 + 0.4 * 1.0
+    assert rule.alpha(edged) == pytest.approx(sum_c / (sum_c + L_FIXED.sum()))
+    np.testing.assert_array_equal(CHPF().importance(edged), CHPF().importance(scores()))
+    framed = Scores(L=L_FIXED, w=L_FIXED.copy(), C=C_FIXED, reference=(0.5, 0.2))
+    framed_edged = Scores(L=L_FIXED, w=L_FIXED.copy(), C=C_FIXED, reference=(0.5, 0.2), C_edge=edge)
+    assert chpf("paper").alpha(framed_edged) > chpf("paper").alpha(framed)
+
+
 def test_chpf_without_c_is_a_config_error():
     with pytest.raises(ConfigError):
         CHPF().alpha(scores(C=None))
