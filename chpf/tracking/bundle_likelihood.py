@@ -45,11 +45,13 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
    step of a local search per weighing that keeps each particle's offset from the grid. The
    moved orientations come back in ``Scores.R``; the filter adopts them.
 
-8. reference (``reference``, for CH-PF and CH-RBPF): on a frame with a detection box, the
-   crop at the box's centre (encoded in the particles' batch) against the whole codebook: the
-   best entry's L and its C (learned, without the box scale: its depth would come from the
-   box) are ``Scores.reference`` (L_ref, C_ref), what a pose can score on this frame's view
-   of the object. Under occlusion they fall with the visible part as the true pose's do.
+8. reference (``reference``, for CH-PF and CH-RBPF; CHPF_REFERENCES): on a frame with the
+   box it names (the detection; with "box" also, on a frame without one, the search region's
+   box around the estimate while it is not widened: ``Frame.cue_box``), the crop at the box's
+   centre (encoded in the particles' batch) against the whole codebook: the best entry's L and
+   its C (learned, without the box scale: its depth would come from the box) are
+   ``Scores.reference`` (L_ref, C_ref), what a pose can score on this frame's view of the
+   object. Under occlusion they fall with the visible part as the true pose's do.
 
 Particles with z below ``z_min`` (behind or at the camera) get c = -1 (L = 0) and C = 1.
 """
@@ -70,7 +72,7 @@ from chpf.tracking.config import BOX_SHAPES, C_MODES, L_FROM_COS
 from chpf.tracking.depth_scores import depth_scores
 from chpf.tracking.model_outline import outline_points
 from chpf.tracking.rotation_diffusion import neighbour_table
-from chpf.tracking.strategies import either
+from chpf.tracking.strategies import CHPF_REFERENCES, either
 from chpf.tracking.timing import ms_since
 from chpf.tracking.types import CodebookScores, Frame, Reference, Scores
 
@@ -140,7 +142,7 @@ class BundleLikelihood:
         c_box_shape: str = "gauss",
         c_edge: float | None = None,
         refine_neighbours: int = 0,
-        reference: bool = False,
+        reference: str = "none",
     ) -> None:
         if c_mode not in C_MODES:
             raise ConfigError(f"c_mode must be one of {C_MODES}, got {c_mode!r}")
@@ -148,6 +150,8 @@ class BundleLikelihood:
             raise ConfigError(f"c_mode {c_mode!r} needs depth (modality rgbd)")
         if l_from_cos not in L_FROM_COS:
             raise ConfigError(f"l_from_cos must be one of {L_FROM_COS}, got {l_from_cos!r}")
+        if reference not in CHPF_REFERENCES:
+            raise ConfigError(f"reference must be one of {CHPF_REFERENCES}, got {reference!r}")
         if c_box_shape not in BOX_SHAPES:
             raise ConfigError(f"c_box_shape must be one of {BOX_SHAPES}, got {c_box_shape!r}")
         if sigma <= 0:
@@ -167,10 +171,10 @@ class BundleLikelihood:
         self.c_box_shape = c_box_shape
         self.c_edge = c_edge
         self._outline: np.ndarray | None = None  # ``outline``, made on first use
-        self.reference = bool(reference)
+        self.reference = reference
         # the cue box's crop rides along in the particles' encoder pass once it has been asked
         # for (_cue_embedding): (crop (S,S,3), its AE embedding (1,E)) of the last, or None
-        self._cue_in_batch = self.reference
+        self._cue_in_batch = reference != "none"
         self._cue: tuple[np.ndarray, np.ndarray] | None = None
         self.neighbours = (
             neighbour_table(self.grid, refine_neighbours) if refine_neighbours > 1 else None
@@ -285,7 +289,7 @@ class BundleLikelihood:
         if C is not None:
             C_box, C_edge = self._box_evidence(frame, R if R_moved is None else R_moved, t)
             C = np.where(behind, 1.0, either(C, C_box))
-        ref = self.frame_reference(frame) if self.reference else None
+        ref = self.frame_reference(frame)
         return Scores(L=L, w=w, C=C, stage_ms=ms, R=R_moved, reference=ref, C_edge=C_edge)
 
     def _search(
@@ -367,7 +371,7 @@ class BundleLikelihood:
             """C_edge (N,) of entries idx (N,) at these translations, None when off."""
             return self._box_evidence(frame, self._entry_poses(idx, t), t)[1]
 
-        ref = self.frame_reference(frame) if self.reference else None
+        ref = self.frame_reference(frame)
         return CodebookScores(cos=cos, stage_ms=ms, misaligned=misaligned, reference=ref, edge=edge)
 
     def _entry_poses(self, idx: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -392,8 +396,13 @@ class BundleLikelihood:
         return self._all_cosines(emb, t0[None])[0], t0
 
     def frame_reference(self, frame: Frame) -> Reference | None:
-        """(L_ref, C_ref) of the frame (module docstring, item 8); None without a detection."""
-        t0 = self._cue_translation(frame) if valid_box(frame.box) is not None else None
+        """(L_ref, C_ref) of the frame (module docstring, item 8); None when ``reference`` is
+        "none" or the frame has no box it names."""
+        if self.reference == "none" or (
+            self.reference == "detection" and valid_box(frame.box) is None
+        ):
+            return None
+        t0 = self._cue_translation(frame)
         if t0 is None:
             return None
         crop, emb = self._cue_embedding(frame, t0)

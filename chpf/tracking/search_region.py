@@ -10,7 +10,10 @@ image. phi_cand reads the box as it reads a detection's (chpf.tracking.candidate
 The region widens with the filter's doubt. A weighed frame is *doubtful* when
 
 - the method has a Counter-Hypothetical likelihood (CH-PF, CH-RBPF: ``sum_C`` is recorded):
-  its alpha = S_C / (S_C + S_L) is above ``alpha_doubt``;
+  the set's doubt sum_C / (sum_C + sum_L) over its particles, of C and L as they are, is above
+  ``alpha_doubt``. Not alpha itself: CH-PF's alpha measures the set against the best
+  hypothesis at the region's own box (``chpf.reference: box``), where a set that lost the
+  object finds its view as poor as the box's crop, so alpha stays low there;
 - any other method: the mean unnormalised likelihood of its particles, sum_L / N, is below
   ``l_doubt``.
 
@@ -91,7 +94,7 @@ class SearchConfig(Section):
     """The search region of frames without a detection (chpf.tracking.search_region):
     box_source (BOX_SOURCES); margin, the estimate's box side x (1 + margin); widen, the
     window's scale factor per doubtful frame; patience, doubtful frames in a row before it
-    widens; alpha_doubt, CH-PF's / CH-RBPF's alpha above which a frame is doubtful; l_doubt,
+    widens; alpha_doubt, CH-PF's / CH-RBPF's doubt above which a frame is doubtful; l_doubt,
     the mean L of the particles below which a frame of another method is doubtful; probes,
     the most grid boxes scored per widened frame over the whole image (0: no probes, phi_cand
     draws in the whole window); probe_sizes, their sides range from 1 / probe_sizes to
@@ -381,7 +384,8 @@ class SearchRegion:
         if not result.weighed:
             return None
         if math.isfinite(result.sum_C):
-            return bool(result.alpha > self.config.alpha_doubt)
+            total = result.sum_C + (result.sum_L if math.isfinite(result.sum_L) else 0.0)
+            return bool(total <= 0.0 or result.sum_C / total > self.config.alpha_doubt)
         mean_l = result.sum_L / n_particles if math.isfinite(result.sum_L) else 0.0
         return bool(mean_l < self.config.l_doubt)
 

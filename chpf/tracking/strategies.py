@@ -106,13 +106,16 @@ every particle weighed by its normalised importance weight w_i: S_X = sum_i w_i 
 (all alike when the weights collapsed)."""
 
 
-CHPFReference = Literal["none", "detection"]
+CHPFReference = Literal["none", "detection", "box"]
 CHPF_REFERENCES: tuple[str, ...] = typing.get_args(CHPFReference)
 """What CH-PF's alpha measures the set's L and C against: "none" their values as they are (the
 paper's); "detection" the frame's own best hypothesis at the detection box (Scores.reference,
 relative_scores): the set is in doubt when it explains the frame worse than that hypothesis
-does, not when the frame shows little of the object. Frames without a detection use the values
-as they are."""
+does, not when the frame shows little of the object; "box" the same, and on a frame without a
+detection the best hypothesis at the search region's box around the estimate while the region
+is not widened (Frame.cue_box; chpf.tracking.search_region): with the first box only, the
+values as they are read an occluded object as a lost one and widened the search around a set
+that was on it. Frames without such a box use the values as they are."""
 
 
 def either(C: np.ndarray, other: np.ndarray | None) -> np.ndarray:
@@ -167,7 +170,7 @@ class CHPFConfig(Section):
     c_weight: float = setting(1.0, ge=0.0)
     keep_belief: bool = True
     temper: float = setting(1.0, ge=0.0, le=1.0)
-    reference: CHPFReference = "detection"
+    reference: CHPFReference = "box"
 
 
 class CHPF(Strategy):

@@ -138,7 +138,7 @@ class Tracker:
             c_box_shape=cfg.chpf.c_box_shape,
             c_edge=cfg.chpf.c_edge,
             refine_neighbours=lik.refine_neighbours,
-            reference=cfg.chpf.reference == "detection" and method in ("chpf", "chrbpf"),
+            reference=cfg.chpf.reference if method in ("chpf", "chrbpf") else "none",
         )
         diameter = float(bundle.obj_info.diameter)
         cand = cfg.candidates

@@ -308,19 +308,20 @@ def test_box_centre_crop_rides_along_in_the_particles_encoder_pass(
     assert sizes == [9, 9, 1, 9, 1]
 
 
-def test_the_frames_reference_is_the_best_codebook_entry_at_the_detection_box(
+def test_the_frames_reference_is_the_best_codebook_entry_at_the_frames_box(
     bundle, rendered_sequence
 ):
-    """reference=True: Scores and CodebookScores carry (L_ref, C_ref), the best codebook entry's
-    L for the crop at the detection box's centre and the classifier's C of that crop and entry;
-    None without a detection (a search region's box is the estimate's own) and when off."""
+    """reference "detection": Scores and CodebookScores carry (L_ref, C_ref), the best codebook
+    entry's L for the crop at the detection box's centre and the classifier's C of that crop and
+    entry; None without a detection and when off. Reference "box" takes, on a frame without a
+    detection, the search region's box while it is not widened (Region.cue), none once it is."""
     from chpf.crops import crop_affines, extract_crops
     from chpf.tracking.types import Region
 
     seq = rendered_sequence
     frame = Frame(seq.rgb[3], None, seq.K, seq.box(3))
     R, t = _hypotheses(seq, 3, np.random.default_rng(0), n=4)["truth"]
-    like = BundleLikelihood(bundle, reference=True)
+    like = BundleLikelihood(bundle, reference="detection")
     s = like.score(frame, R, t)
     cos, t0 = BundleLikelihood(bundle).box_centre_cosines(frame)
     k = int(np.argmax(cos))
@@ -330,8 +331,22 @@ def test_the_frames_reference_is_the_best_codebook_entry_at_the_detection_box(
     assert s.reference[0] > 0.6 and s.reference[1] < 0.5  # the whole box: recognised, aligned
     assert like.codebook_scores(frame, t).reference == pytest.approx(s.reference)
     region = Region(box=seq.box(3), area=seq.box(3), window=seq.box(3))
-    assert like.score(Frame(seq.rgb[3], None, seq.K, None, region), R, t).reference is None
+    searched = Frame(seq.rgb[3], None, seq.K, None, region)
+    assert like.score(searched, R, t).reference is None
     assert BundleLikelihood(bundle).score(frame, R, t).reference is None
+    boxed = BundleLikelihood(bundle, reference="box")
+    assert boxed.score(searched, R, t).reference == pytest.approx(s.reference)
+    assert boxed.codebook_scores(searched, t).reference == pytest.approx(s.reference)
+    widened = Frame(
+        seq.rgb[3],
+        None,
+        seq.K,
+        None,
+        Region(region.box, region.area, region.window, 2.0, cue=False),
+    )
+    assert boxed.score(widened, R, t).reference is None
+    with pytest.raises(ConfigError, match="reference must be one of"):
+        BundleLikelihood(bundle, reference="estimate")
 
 
 def _track(tracker, seq, modality="rgb", frames=None, collapse_at=None, wall=None):

@@ -32,7 +32,7 @@ def _result(alpha: float = float("nan"), sum_L: float = 0.0, sum_C: float = floa
     return TrackResult(np.eye(3), np.zeros(3), alpha, sum_L, sum_C, 10.0, {}, True, weighed)
 
 
-DOUBT = _result(alpha=0.9, sum_L=10.0, sum_C=40.0)  # CH-PF: alpha above alpha_doubt
+DOUBT = _result(alpha=0.9, sum_L=10.0, sum_C=40.0)  # CH-PF: doubt 0.8, above alpha_doubt
 CALM = _result(alpha=0.05, sum_L=40.0, sum_C=2.0)
 
 
@@ -94,6 +94,18 @@ def test_doubt_widens_the_region_after_patience_up_to_the_whole_image_then_shrin
     search.update(DOUBT, 50)
     search.update(DOUBT, 50)
     assert search.scale == 1.0
+
+
+def test_doubt_of_the_ch_filters_is_their_sums_of_c_and_l_not_alpha():
+    """CH-PF's alpha measures the set against the region's own box (chpf.reference: box), so a
+    set that lost the object can have alpha 0: the widening reads sum_C / (sum_C + sum_L)."""
+    search = SearchRegion(SearchConfig(patience=1, widen=2.0, alpha_doubt=0.6), CUBE)
+    search.update(_result(alpha=0.95, sum_L=30.0, sum_C=15.0), 50)  # doubt 0.33: calm
+    assert search.scale == 1.0
+    search.update(_result(alpha=0.0, sum_L=10.0, sum_C=30.0), 50)  # doubt 0.75: doubtful
+    assert search.scale == 2.0
+    search.update(_result(alpha=0.0, sum_L=0.0, sum_C=0.0), 50)  # no evidence either way
+    assert search.scale == 4.0
 
 
 def test_doubt_of_methods_without_c_is_the_mean_likelihood_and_predict_only_frames_count_not():

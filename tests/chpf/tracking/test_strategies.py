@@ -139,10 +139,12 @@ def test_chpf_weighted_sums_are_expectations_under_the_importance_weights():
 
 
 def test_chpf_alpha_measures_the_set_against_the_frames_reference():
-    """reference "detection" (the default): alpha is the ratio of L' = min(L / L_ref, 1) and
-    C' = clip((C - C_ref) / (1 - C_ref), 0, 1); temper reads the ratio of L and C as they are;
-    a frame without a reference (no detection) and reference "none" use those values."""
-    assert CHPFConfig().reference == "detection" and CHPF_REFERENCES == ("none", "detection")
+    """reference "box" (the default; "detection" alike, the likelihood picks the box): alpha is
+    the ratio of L' = min(L / L_ref, 1) and C' = clip((C - C_ref) / (1 - C_ref), 0, 1); temper
+    reads the ratio of L and C as they are; a frame without a reference and reference "none"
+    use those values."""
+    assert CHPFConfig().reference == "box"
+    assert CHPF_REFERENCES == ("none", "detection", "box")
     L_rel, C_rel = relative_scores(L_FIXED, C_FIXED, (0.5, 0.2))
     np.testing.assert_allclose(L_rel, [1.0, 1.0, 0.2, 0.0, 0.6])
     np.testing.assert_allclose(C_rel, [0.0, 0.25, 0.875, 1.0, 0.5])
