@@ -10,7 +10,8 @@ jump is not part of a suite's hash). Every method tracks them with the tracking 
 (default: ``search.box_source: estimate``, i.e. the first frame's box only) and the seeds; the
 table printed gives per sequence and seed the frames from the jump to the first frame with ADD-S <
 0.1 diameter ("-": not within the sequence), then per method the runs re-acquired within 30 frames.
-``--figure PNG`` draws the search window's width, alpha and the ADD-S error over the frames of the
+``--figure PNG`` draws the search window's width, alpha and the set's doubt (what widens the
+window: chpf.tracking.search_region.set_doubt), and the ADD-S error over the frames of the
 first job that finds the object again (else the first job), tracked again with a Tracker (the
 bench's summaries hold no region)."""
 
@@ -67,7 +68,8 @@ def reacquisition(summary: dict, jump: int) -> int | None:
 
 
 def draw_figure(seq, config: str, seed: int, jump: int, path: Path) -> None:
-    """Track ``seq`` with CH-PF (first box only) and plot region width, alpha and ADD-S."""
+    """Track ``seq`` with CH-PF (first box only) and plot region width, alpha with the set's
+    doubt (what widens the region), and ADD-S."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -75,6 +77,7 @@ def draw_figure(seq, config: str, seed: int, jump: int, path: Path) -> None:
 
     from chpf.bop import DETECTIONS_SIM, BopDataset, read_detections
     from chpf.metrics import adds
+    from chpf.tracking.search_region import set_doubt
     from chpf.tracking.tracker import Tracker
 
     ds = BopDataset(seq.root)
@@ -91,18 +94,19 @@ def draw_figure(seq, config: str, seed: int, jump: int, path: Path) -> None:
         gt = next(g for g in scene.gt[im] if g.obj_id == seq.obj_id)
         err = adds(points, r.R, r.t, gt.R, gt.t) / diameter if r.ok else np.nan
         width = np.nan if r.region is None else r.region[2] / rgb.shape[1]
-        rows.append((im, width, r.alpha, err))
-    im, width, alpha, err = np.array(rows).T
+        rows.append((im, width, r.alpha, set_doubt(r), err))
+    im, width, alpha, doubt, err = np.array(rows).T
     fig, axes = plt.subplots(3, 1, figsize=(7, 6), sharex=True)
     for ax, y, label in zip(
         axes,
         (width, alpha, err),
-        ("search window width / image width", "alpha", "ADD-S / diameter"),
+        ("search window width / image width", "alpha (dots), doubt", "ADD-S / diameter"),
         strict=True,
     ):
         ax.plot(im, y, ".-")
         ax.axvline(jump + 1, color="red", lw=0.8)
         ax.set_ylabel(label, fontsize=8)
+    axes[1].plot(im, doubt, color="grey", lw=1.0)
     axes[2].axhline(TRACKED, color="green", lw=0.8, ls="--")
     axes[2].set_yscale("log")
     axes[2].set_xlabel("frame (red: the object jumps 0.3 of the image width)")

@@ -133,6 +133,15 @@ def projected_box(points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarra
     return (x0, y0, w, h)
 
 
+def set_doubt(result: TrackResult) -> float:
+    """The CH filters' doubt of a weighed frame, sum_C / (sum_C + sum_L) over the particles with
+    C and L as they are (1 when both are 0; nan without C): what widens the region."""
+    if not math.isfinite(result.sum_C):
+        return math.nan
+    total = result.sum_C + (result.sum_L if math.isfinite(result.sum_L) else 0.0)
+    return 1.0 if total <= 0.0 else result.sum_C / total
+
+
 def scaled_box(box: Box, scale: float) -> Box:
     """``box`` with its width and height times ``scale``, about its centre."""
     cx, cy = box[0] + 0.5 * box[2], box[1] + 0.5 * box[3]
@@ -384,8 +393,7 @@ class SearchRegion:
         if not result.weighed:
             return None
         if math.isfinite(result.sum_C):
-            total = result.sum_C + (result.sum_L if math.isfinite(result.sum_L) else 0.0)
-            return bool(total <= 0.0 or result.sum_C / total > self.config.alpha_doubt)
+            return bool(set_doubt(result) > self.config.alpha_doubt)
         mean_l = result.sum_L / n_particles if math.isfinite(result.sum_L) else 0.0
         return bool(mean_l < self.config.l_doubt)
 

@@ -17,7 +17,7 @@ from chpf.tracking.config import make_config
 from chpf.tracking.demo import shipped_bundle
 from chpf.tracking.probe_scores import PROBE_SCORES, probe_scores
 from chpf.tracking.runlog import read_log
-from chpf.tracking.search_region import SearchConfig, SearchRegion, projected_box
+from chpf.tracking.search_region import SearchConfig, SearchRegion, projected_box, set_doubt
 from chpf.tracking.tracker import Tracker
 from chpf.tracking.types import CodebookScores, Frame, Region, TrackResult
 from tests.helpers import DEMO_K, demo_box, demo_frames
@@ -106,6 +106,9 @@ def test_doubt_of_the_ch_filters_is_their_sums_of_c_and_l_not_alpha():
     assert search.scale == 2.0
     search.update(_result(alpha=0.0, sum_L=0.0, sum_C=0.0), 50)  # no evidence either way
     assert search.scale == 4.0
+    assert set_doubt(_result(sum_L=10.0, sum_C=30.0)) == pytest.approx(0.75)
+    assert set_doubt(_result(sum_L=0.0, sum_C=0.0)) == 1.0
+    assert math.isnan(set_doubt(_result(alpha=0.5, sum_L=30.0)))  # no C: no doubt of this kind
 
 
 def test_doubt_of_methods_without_c_is_the_mean_likelihood_and_predict_only_frames_count_not():
