@@ -52,6 +52,22 @@ from data_gen.pool_store import release
 from data_gen.rotations import draw_candidates, symmetry_set
 
 
+def aligned_depth_bound(pairs_cfg: dict) -> float:
+    """|ln(z_crop / z)| below which a crop counts as cut at the right depth when scale
+    negatives are on: half the low end of ``pairs.scale_negative_range``."""
+    return 0.5 * float(pairs_cfg["scale_negative_range"][0])
+
+
+def depth_off(depth_ratio: np.ndarray, pairs_cfg: dict) -> np.ndarray:
+    """Which observed crops (N,) bool were cut at a wrong depth (scale negatives: every
+    hypothesis misaligned), from their ``depth_ratio`` (N,) and the data's ``pairs`` config;
+    none when it made no scale negatives."""
+    r = np.asarray(depth_ratio, dtype=np.float64)
+    if float(pairs_cfg.get("scale_negative_share", 0.0)) <= 0:
+        return np.zeros(r.shape, bool)
+    return np.abs(np.log(np.maximum(r, 1e-6))) >= aligned_depth_bound(pairs_cfg)
+
+
 @dataclass
 class ComposerContext:
     """A generation job: the object, crop spec, config, pool cache and sample kind."""
@@ -220,8 +236,13 @@ class Composer:
         ).view(bool)
         return rgb, m
 
-    def jittered_translations(self, e: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Translation estimates t' (N,3) around the true t of entries e (crop jitter)."""
+    def jittered_translations(
+        self, e: np.ndarray, rng: np.random.Generator, depth_factor: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Translation estimates t' (N,3) around the true t of entries e (crop jitter); where
+        ``depth_factor`` (N,) is finite, z' is z times it (scale negatives), and with scale
+        negatives on, every other z' / z stays within exp(+-lo / 2) of 1 (lo: the low end of
+        ``pairs.scale_negative_range``), so that no aligned crop is as far off in depth."""
         t = np.asarray(self.obs.t)[e]
         j = self.cfg["crop_jitter"]
         n = len(e)
@@ -230,6 +251,10 @@ class Composer:
         noise[:, 2] = rng.normal(0.0, j["z_sigma"], n) * t[:, 2]
         t_est = t + noise
         t_est[:, 2] = np.maximum(t_est[:, 2], 0.5 * t[:, 2])
+        if depth_factor is not None:
+            half = aligned_depth_bound(self.cfg["pairs"])
+            ratio = np.clip(t_est[:, 2] / t[:, 2], np.exp(-half), np.exp(half))
+            t_est[:, 2] = t[:, 2] * np.where(np.isfinite(depth_factor), depth_factor, ratio)
         return t_est
 
     def observed(
@@ -238,13 +263,15 @@ class Composer:
         n: int,
         debug: bool = False,
         empty: np.ndarray | None = None,
+        depth_factor: np.ndarray | None = None,
     ) -> dict[str, np.ndarray]:
         """n augmented observed crops: rgb (n,S,S,3) u8, entry (n,), visib_fract (n,) f32,
         t_est (n,3); with ``debug`` also mask / visible_mask (n,S,S) bool crops (un-augmented
-        geometry, nearest-neighbour warps). ``empty`` (n,) bool: crops without the object."""
+        geometry, nearest-neighbour warps). ``empty`` (n,) bool: crops without the object.
+        ``depth_factor`` (n,): see ``jittered_translations``."""
         S = self.S
         e = rng.integers(0, len(self.obs), n)
-        t_est = self.jittered_translations(e, rng)
+        t_est = self.jittered_translations(e, rng, depth_factor)
         M = crop_to_window_affines(
             t_est, np.asarray(self.obs.K)[e], np.asarray(self.obs.win_affine)[e], self.spec
         )
@@ -279,6 +306,22 @@ class Composer:
             self.grid, R_true, aligned, self.cfg["pairs"], self.sym_rots, self.sym_axes, rng
         )
 
+    def scale_negatives(
+        self, aligned: np.ndarray, empty: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Which pairs (n,) bool are scale negatives (``pairs.scale_negative_share`` of the
+        negatives with the object: the orientation drawn as a positive's, the crop at a wrong
+        depth) and the depth factors (n,) of their crops (nan elsewhere); None for the factors
+        when the share is 0 (no random numbers drawn: the data stay as before)."""
+        p = self.cfg["pairs"]
+        n = len(aligned)
+        if p["scale_negative_share"] <= 0:
+            return np.zeros(n, bool), None
+        scaled = (aligned == 0) & ~empty & (rng.random(n) < p["scale_negative_share"])
+        lo, hi = p["scale_negative_range"]
+        log_f = rng.uniform(lo, hi, n) * np.where(rng.random(n) < 0.5, -1.0, 1.0)
+        return scaled, np.where(scaled, np.exp(log_f), np.nan)
+
     def pairs(self, rng: np.random.Generator, n: int, debug: bool = False) -> dict:
         """n pair samples (spec fields; with ``debug`` also obs/cand masks, entry, t_est)."""
         n_pos = round(self.cfg["pairs"]["positive_share"] * n)
@@ -286,9 +329,11 @@ class Composer:
         aligned[:n_pos] = 1
         aligned = rng.permutation(aligned)
         empty = (aligned == 0) & (rng.random(n) < self.cfg["empty_crops"]["pairs_negative_share"])
-        obs = self.observed(rng, n, debug, empty)
+        scaled, factor = self.scale_negatives(aligned, empty, rng)
+        obs = self.observed(rng, n, debug, empty, factor)
         R_true = np.asarray(self.obs.R_allo)[obs["entry"]]
-        idx, ang = self.candidates(R_true, aligned, rng)
+        idx, ang = self.candidates(R_true, aligned | scaled, rng)
+        true_z = np.asarray(self.obs.t)[obs["entry"], 2]
         order = np.argsort(idx, kind="stable")  # sorted reads from the memory-mapped pool
         cand_rgb = np.empty((n, self.S, self.S, 3), np.uint8)
         cand_depth = np.empty((n, self.S, self.S), np.float16)
@@ -303,6 +348,7 @@ class Composer:
             "cand_R_allo": self.grid.rotations[idx].astype(np.float32),
             "angle_deg": np.degrees(ang).astype(np.float32),
             "visib_fract": obs["visib_fract"],
+            "depth_ratio": (obs["t_est"][:, 2] / true_z).astype(np.float32),
         }
         if debug:
             out.update(

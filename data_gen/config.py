@@ -107,6 +107,11 @@ class EmptyCrops(Section):
     plain_share: float = setting(0.5, ge=0.0, le=1.0)
 
 
+CROP_KEYS = ("scale_negative_share", "scale_negative_range")
+"""``pairs`` keys that say how the observed crops are cut, not how hypotheses are drawn (a
+classifier's extra pairs share the observed crop, so they cannot draw these differently)."""
+
+
 @dataclass
 class Pairs(Section):
     positive_share: float = setting(0.5, ge=0.0, le=1.0)
@@ -118,6 +123,8 @@ class Pairs(Section):
         (20.0, 45.0), ge=0.0, le=180.0, ordered=True
     )
     flip_negative_share: float = setting(0.2, ge=0.0, le=1.0)
+    scale_negative_share: float = setting(0.0, ge=0.0, le=1.0)
+    scale_negative_range: tuple[float, float] = setting((0.12, 0.4), ge=0.01, le=1.5, ordered=True)
 
     def check(self) -> None:
         """Cross-key rules that single-key checks cannot see."""

@@ -32,6 +32,7 @@ FIELDS: dict[str, dict[str, tuple[np.dtype, Any]]] = {
         "cand_R_allo": (np.dtype(np.float32), lambda s: (3, 3)),
         "angle_deg": (np.dtype(np.float32), lambda s: ()),
         "visib_fract": (np.dtype(np.float32), lambda s: ()),
+        "depth_ratio": (np.dtype(np.float32), lambda s: ()),
     },
     "ae": {
         "input_rgb": (np.dtype(np.uint8), lambda s: (s, s, 3)),

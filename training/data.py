@@ -31,6 +31,7 @@ PAIR_KEYS = (
     "cand_R_allo",
     "angle_deg",
     "visib_fract",
+    "depth_ratio",
 )
 REQUIRED_KEYS = {"ae": AE_KEYS, "pairs": PAIR_KEYS}
 

@@ -37,6 +37,8 @@ from chpf.atomic import atomic_write_text
 from chpf.console import run_main
 from chpf.errors import ConfigError
 from chpf.objects import MESH_UNITS
+from data_gen.compose import depth_off
+from data_gen.config import default_config
 from training.checkpoints import load_autoencoder, load_classifier
 from training.data import open_shards, shard_crop_size
 from training.lit import classifier_metrics, load_codebook_npz, pair_subsets
@@ -182,11 +184,14 @@ def evaluate_pairs(
     clear_visib: float = 0.9,
 ) -> dict[str, Any]:
     """Classifier figures and the autoencoder cosine on a held-out pairs shard folder."""
-    keys = ["obs_rgb", "cand_rgb", "aligned", "angle_deg", "visib_fract"]
+    keys = ["obs_rgb", "cand_rgb", "aligned", "angle_deg", "visib_fract", "depth_ratio"]
     data = load_samples(pairs_dir, "pairs", keys, max_samples, seed)
     y = 1 - data["aligned"].astype(np.int64)  # 1 = misaligned
     visib = data["visib_fract"]
     pos, hard, occl, empty = pair_subsets(y, data["angle_deg"], visib, hard_deg, occluded_visib)
+    pairs_cfg = default_config()["pairs"]
+    pairs_cfg.update(open_shards(pairs_dir, "pairs").manifest.get("config", {}).get("pairs", {}))
+    off = (y == 1) & ~empty & depth_off(data["depth_ratio"], pairs_cfg)  # scale negatives
     clear = pos & (visib >= clear_visib)
     out: dict[str, Any] = {
         "n_pairs": int(y.size),
@@ -194,7 +199,13 @@ def evaluate_pairs(
         "n_hard_negatives": int(hard.sum()),
         "n_occluded_positives": int(occl.sum()),
         "n_empty_negatives": int(empty.sum()),
+        "n_depth_negatives": int(off.sum()),
     }
+
+    def depth_auc(score: np.ndarray) -> float:  # positives against the scale negatives
+        sel = pos | off
+        return roc_auc(score[sel], y[sel]) if off.any() and pos.any() else float("nan")
+
     if ch_path:
         ch, info = load_classifier(ch_path)
         logit = classifier_logits(ch, data["obs_rgb"], data["cand_rgb"])
@@ -204,6 +215,7 @@ def evaluate_pairs(
             **{k: m[k] for k in ("acc", "auc", "auc_hard", "aligned_rate_pos", "empty_rejected")},
             "aligned_rate_occluded": m["aligned_rate_occluded"],
             "auc_hard_by_visibility": hard_auc_by_visibility(logit, pos, hard, visib),
+            "auc_depth": depth_auc(logit),
         }
     if ae_path:
         ae, _ = load_autoencoder(ae_path)
@@ -216,6 +228,7 @@ def evaluate_pairs(
         out["ae_cosine"] = {
             "auc": roc_auc(-cos[~empty], y[~empty]),
             "auc_hard": roc_auc(-cos[sel], y[sel]) if hard.any() and pos.any() else float("nan"),
+            "auc_depth": depth_auc(-cos),
             "mean_pos_clear": _mean(clear),
             "mean_pos_occluded": _mean(occl),
             "mean_neg": _mean(y == 1),
@@ -271,6 +284,11 @@ def format_report(res: dict[str, Any]) -> str:
                 for b in c["auc_hard_by_visibility"]
             ]
             lines.append("  hard-negative AUC by visibility: " + ", ".join(bands))
+            if p["n_depth_negatives"]:
+                lines.append(
+                    f"  ROC AUC against the {p['n_depth_negatives']} scale negatives (right "
+                    f"orientation, wrong depth): {c['auc_depth']:.4f}"
+                )
         if "ae_cosine" in p:
             e = p["ae_cosine"]
             lines.append(

@@ -23,6 +23,7 @@ import torch.nn.functional as F
 
 from chpf.config_schema import to_dict
 from chpf.errors import ChpfError, ConfigError, DatasetError
+from data_gen.compose import depth_off
 from data_gen.config import default_config
 from training.batch_augment import BatchAugment, augment_batch
 from training.checkpoints import (
@@ -746,6 +747,7 @@ class CHLitModule(_ChpfModule):
             cfg = dataclasses.replace(cfg, share_twin=False)
         self.model = CHClassifier(cfg)
         self._candidates: CandidateCodebook | None = None
+        self._data_pairs_cfg: dict[str, Any] = {}  # the data's pairs config (on_train_start)
         self._candidate_crops: np.ndarray | None = None
         self._candidates_embedded_at = -1  # global step of the last codebook embedding
         self._pair_rng = np.random.default_rng(0)
@@ -833,11 +835,10 @@ class CHLitModule(_ChpfModule):
         logits, labels = logit, y
         if self._candidates is not None:
             m = int(self.hparams.extra_pairs)
+            shows = (visib > 0).cpu().numpy()
+            shows &= ~depth_off(batch["depth_ratio"].cpu().numpy(), self._data_pairs_cfg)
             idx, y_x, ang_x = self._candidates.draw(
-                batch["obs_R_allo"].detach().cpu().double().numpy(),
-                (visib > 0).cpu().numpy(),
-                m,
-                self._pair_rng,
+                batch["obs_R_allo"].detach().cpu().double().numpy(), shows, m, self._pair_rng
             )
             cand_x = self._candidates.embeddings[torch.from_numpy(idx.reshape(-1))]
             logit_x = self.model.head(obs_n.repeat_interleave(m, 0), cand_x.to(obs_n)).float()
@@ -887,6 +888,7 @@ class CHLitModule(_ChpfModule):
             )
         pairs_cfg = default_config()["pairs"]
         pairs_cfg.update(data_cfg.get("pairs", {}))
+        self._data_pairs_cfg = dict(pairs_cfg)  # how the data's crops were cut (depth_off)
         pairs_cfg.update(mix_overrides(self.extra_pairs_mix))
         info = manifest.get("object_info")
         self._candidates = CandidateCodebook(cb["rotations"], emb, pairs_cfg, info)

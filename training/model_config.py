@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal, TypeVar
 
 from chpf.config_schema import Invalid, Section, load, setting
-from data_gen.config import Pairs
+from data_gen.config import CROP_KEYS, Pairs
 
 
 @dataclass
@@ -111,7 +111,7 @@ def _optional(f: dataclasses.Field) -> tuple[str, Any, dataclasses.Field]:
 # meanings in configs/gen_default.yaml); null keeps the value the data was drawn with.
 PairsMix = dataclasses.make_dataclass(
     "PairsMix",
-    [_optional(f) for f in dataclasses.fields(Pairs)],
+    [_optional(f) for f in dataclasses.fields(Pairs) if f.name not in CROP_KEYS],
     bases=(Section,),
     namespace={"__module__": __name__, "__doc__": "Overrides of the data's ``pairs`` keys."},
 )

@@ -9,7 +9,7 @@ from chpf.crops import CropSpec, crop_affines, extract_crops
 from chpf.errors import ConfigError
 from chpf.geometry import geodesic_angle, random_rotations
 from chpf.objects import builtin_object
-from data_gen.compose import Composer, ComposerContext, build_pools
+from data_gen.compose import Composer, ComposerContext, build_pools, depth_off
 from data_gen.config import load_config
 from data_gen.pool import window_intrinsics
 from data_gen.rotations import grid_spacing_deg, symmetric_angle, symmetry_set
@@ -223,3 +223,35 @@ def test_empty_pair_negatives_hold_no_object(composer):
     assert np.all(out["aligned"][empty] == 0)
     assert not out["obs_mask"][empty].any() and out["obs_mask"][~empty].sum((1, 2)).min() > 0
     assert out["obs_rgb"][empty].std() > 5  # background, not a black crop
+
+
+def test_scale_negatives_are_right_in_orientation_and_wrong_in_depth(composer):
+    """A share of the negatives is drawn like a positive but cut at a depth off by a factor in
+    the configured range (nearer and farther); every other crop stays within half its low end,
+    and depth_ratio records z_crop / z for each pair."""
+    comp, _ = composer("pairs", "mug", "pairs.scale_negative_share=0.5", "crop_jitter.z_sigma=0.2")
+    out = comp.pairs(np.random.default_rng(3), 200, debug=True)
+    true_z = np.asarray(comp.obs.t)[out["entry"], 2]
+    np.testing.assert_allclose(out["depth_ratio"], out["t_est"][:, 2] / true_z, rtol=1e-6)
+    log_r = np.log(out["depth_ratio"])
+    scaled = np.abs(log_r) >= 0.12 - 1e-6
+    assert 25 <= scaled.sum() <= 75
+    assert np.all(out["aligned"][scaled] == 0)
+    assert np.all(out["angle_deg"][scaled] <= 10.0 + grid_spacing_deg(comp.grid)["max"] + 1e-3)
+    assert np.abs(log_r[scaled]).max() <= 0.4 + 1e-6
+    assert (log_r[scaled] > 0).any() and (log_r[scaled] < 0).any()
+    # z_sigma 0.2 would put many crops past 0.06: they are held within it
+    assert np.abs(log_r[~scaled]).max() <= 0.06 + 1e-6 and np.ptp(log_r[~scaled]) > 0.1
+
+
+def test_without_scale_negatives_the_depth_jitter_is_untouched(composer):
+    comp, _ = composer("pairs", "mug", "crop_jitter.z_sigma=0.2")
+    out = comp.pairs(np.random.default_rng(3), 100)
+    assert np.abs(np.log(out["depth_ratio"])).max() > 0.12  # no clipping, no scale negatives
+    assert not depth_off(out["depth_ratio"], {"scale_negative_share": 0.0}).any()
+
+
+def test_depth_off_reads_the_datas_range():
+    cfg = {"scale_negative_share": 0.3, "scale_negative_range": [0.12, 0.4]}
+    ratio = np.exp([0.0, 0.059, -0.061, 0.2, -0.3])
+    np.testing.assert_array_equal(depth_off(ratio, cfg), [False, False, True, True, True])

@@ -84,6 +84,7 @@ def write_shards(
                 "cand_R_allo": R_c.astype(np.float32),
                 "angle_deg": angle.astype(np.float32),
                 "visib_fract": rng.uniform(0.2, 1.0, m).astype(np.float32),
+                "depth_ratio": np.ones(m, dtype=np.float32),
             }
         atomic_save_npz(out / entry["file"], arrays)
     return out

@@ -125,3 +125,48 @@ def test_refreshed_candidates_follow_the_trained_branch(
     assert not np.allclose(seen[0], seen[3], atol=1e-4)  # the branch trained
     np.testing.assert_allclose(table, seen[3], atol=1e-6)  # refreshed at step 3, not at 4
     assert not np.allclose(table, seen[4], atol=1e-6)
+
+
+def test_crops_cut_at_a_wrong_depth_meet_misaligned_hypotheses_only(
+    pattern_images, tmp_path: Path
+) -> None:
+    """A scale negative's observed crop (depth_ratio off by more than the data's aligned
+    bound) is wrong whatever the hypothesis: its extra pairs are drawn as for a crop without
+    the object, all misaligned; the others keep positives."""
+    imgs, R = pattern_images(16, 16, seed=5)
+    save_codebook(tmp_path / "cb.npz", codebook_arrays(R, imgs))
+    lit = CHLitModule(
+        ClassifierConfig(EncoderConfig(channels=(8, 16), kernel=3, embedding_dim=16, size=16)),
+        extra_pairs=8,
+        candidate_codebook=str(tmp_path / "cb.npz"),
+        candidate_refresh_steps=3,
+    )
+    pairs = default_config()["pairs"] | {"scale_negative_share": 0.3}
+    lit._candidates = CandidateCodebook(R, torch.randn(16, 16), pairs, None)
+    lit._data_pairs_cfg = pairs
+    lit._pair_rng = np.random.default_rng(0)
+    lit._augment_rng = np.random.default_rng(1)
+    drawn = {}
+    draw = lit._candidates.draw
+
+    def spy(R_obs, shows, m, rng):
+        drawn["out"] = draw(R_obs, shows, m, rng)
+        return drawn["out"]
+
+    lit._candidates.draw = spy
+    ratio = np.array([1.0, 1.02, 0.8, 1.3, 1.0, 0.95, 1.25, 1.0], np.float32)
+    batch = {
+        "obs_rgb": torch.from_numpy(imgs[:8]),
+        "cand_rgb": torch.from_numpy(imgs[8:]),
+        "aligned": torch.zeros(8, dtype=torch.uint8),
+        "obs_R_allo": torch.from_numpy(R[:8].astype(np.float32)),
+        "cand_R_allo": torch.from_numpy(R[8:].astype(np.float32)),
+        "angle_deg": torch.full((8,), 90.0),
+        "visib_fract": torch.ones(8),
+        "depth_ratio": torch.from_numpy(ratio),
+    }
+    lit._step(batch, train=True)
+    labels = drawn["out"][1]  # (8, m), 1 = misaligned
+    off = np.abs(np.log(ratio)) >= 0.06
+    assert np.all(labels[off] == 1)
+    assert (labels[~off] == 0).sum() > 4  # about half of them positives
