@@ -55,21 +55,30 @@ class CandidateCodebook:
         return self.embeddings[torch.from_numpy(self.grid.nearest(R_allo))]
 
     def draw(
-        self, R_obs: np.ndarray, shows_object: np.ndarray, m: int, rng: np.random.Generator
+        self,
+        R_obs: np.ndarray,
+        shows_object: np.ndarray,
+        m: int,
+        rng: np.random.Generator,
+        wrong_depth: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``m`` hypotheses for each of B observed crops.
 
         R_obs: (B,3,3) true allocentric orientations; shows_object: (B,) bool (False: an empty
-        crop, all its hypotheses are misaligned). Returns codebook indices (B,m), labels
-        (B,m) float (1 = misaligned) and symmetry-aware angles (B,m) in degrees.
+        crop, all its hypotheses are misaligned); wrong_depth: (B,) bool, crops cut at a wrong
+        depth (scale negatives, data_gen.compose.depth_off): their hypotheses are drawn as for
+        any crop, near the true orientation as often, and all labelled misaligned. Returns
+        codebook indices (B,m), labels (B,m) float (1 = misaligned) and symmetry-aware angles
+        (B,m) in degrees.
         """
         b = R_obs.shape[0]
         R = np.repeat(np.asarray(R_obs, np.float64), m, axis=0)
-        aligned = rng.random(b * m) < float(self.pairs_cfg["positive_share"])
-        aligned &= np.repeat(shows_object, m)
+        near = rng.random(b * m) < float(self.pairs_cfg["positive_share"])
+        near &= np.repeat(shows_object, m)
         idx, ang = draw_candidates(
-            self.grid, R, aligned, self.pairs_cfg, self.sym_rots, self.sym_axes, rng
+            self.grid, R, near, self.pairs_cfg, self.sym_rots, self.sym_axes, rng
         )
         shape = (b, m)
+        aligned = near if wrong_depth is None else near & ~np.repeat(wrong_depth, m)
         label = (~aligned).astype(np.float32)
         return idx.reshape(shape), label.reshape(shape), np.degrees(ang).reshape(shape)

@@ -835,10 +835,12 @@ class CHLitModule(_ChpfModule):
         logits, labels = logit, y
         if self._candidates is not None:
             m = int(self.hparams.extra_pairs)
-            shows = (visib > 0).cpu().numpy()
-            shows &= ~depth_off(batch["depth_ratio"].cpu().numpy(), self._data_pairs_cfg)
             idx, y_x, ang_x = self._candidates.draw(
-                batch["obs_R_allo"].detach().cpu().double().numpy(), shows, m, self._pair_rng
+                batch["obs_R_allo"].detach().cpu().double().numpy(),
+                (visib > 0).cpu().numpy(),
+                m,
+                self._pair_rng,
+                depth_off(batch["depth_ratio"].cpu().numpy(), self._data_pairs_cfg),
             )
             cand_x = self._candidates.embeddings[torch.from_numpy(idx.reshape(-1))]
             logit_x = self.model.head(obs_n.repeat_interleave(m, 0), cand_x.to(obs_n)).float()

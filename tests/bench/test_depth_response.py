@@ -28,11 +28,11 @@ def scene(visib: list[float], z: float = 0.8):
     gt = SimpleNamespace(obj_id=3, R=np.eye(3), t=np.array([0.05, -0.02, z]))
     other = SimpleNamespace(obj_id=7, R=np.eye(3), t=np.array([0.0, 0.0, 1.0]))
     ids = list(range(len(visib)))
+    info = [SimpleNamespace(visib_fract=v) for v in visib]
     return SimpleNamespace(
         image_ids=lambda: ids,
         gt={i: [other, gt] for i in ids},
-        gt_info={i: [SimpleNamespace(visib_fract=1.0), SimpleNamespace(visib_fract=v)]
-                 for i, v in zip(ids, visib, strict=True)},  # fmt: skip
+        gt_info={i: [SimpleNamespace(visib_fract=1.0), info[i]] for i in ids},
         rgb=lambda i: np.zeros((8, 8, 3), np.uint8),
         camera=lambda i: SimpleNamespace(K=np.eye(3)),
     )

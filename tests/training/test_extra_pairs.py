@@ -131,8 +131,9 @@ def test_crops_cut_at_a_wrong_depth_meet_misaligned_hypotheses_only(
     pattern_images, tmp_path: Path
 ) -> None:
     """A scale negative's observed crop (depth_ratio off by more than the data's aligned
-    bound) is wrong whatever the hypothesis: its extra pairs are drawn as for a crop without
-    the object, all misaligned; the others keep positives."""
+    bound) is wrong whatever the hypothesis: its extra pairs are drawn as for any crop, about
+    half of them near the true orientation, and all are misaligned; the others keep their
+    positives."""
     imgs, R = pattern_images(16, 16, seed=5)
     save_codebook(tmp_path / "cb.npz", codebook_arrays(R, imgs))
     lit = CHLitModule(
@@ -149,8 +150,8 @@ def test_crops_cut_at_a_wrong_depth_meet_misaligned_hypotheses_only(
     drawn = {}
     draw = lit._candidates.draw
 
-    def spy(R_obs, shows, m, rng):
-        drawn["out"] = draw(R_obs, shows, m, rng)
+    def spy(R_obs, shows, m, rng, wrong_depth):
+        drawn["out"] = draw(R_obs, shows, m, rng, wrong_depth)
         return drawn["out"]
 
     lit._candidates.draw = spy
@@ -166,7 +167,8 @@ def test_crops_cut_at_a_wrong_depth_meet_misaligned_hypotheses_only(
         "depth_ratio": torch.from_numpy(ratio),
     }
     lit._step(batch, train=True)
-    labels = drawn["out"][1]  # (8, m), 1 = misaligned
+    labels, angles = drawn["out"][1], drawn["out"][2]  # (8, m), 1 = misaligned
     off = np.abs(np.log(ratio)) >= 0.06
     assert np.all(labels[off] == 1)
-    assert (labels[~off] == 0).sum() > 4  # about half of them positives
+    assert (angles[off] < 20).sum() > 4  # right orientation, wrong depth: the hard case
+    assert np.all((labels[~off] == 0) == (angles[~off] < 20)) and (labels[~off] == 0).sum() > 4
