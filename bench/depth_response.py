@@ -22,17 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.likelihoods import BANDS, band_index
 from bench.sequences import build_sequences, default_cache_dir, resolve_bundles
 from bench.suite import load_suite
 
-BANDS = ((0.9, 1.01), (0.6, 0.9), (0.3, 0.6), (0.0, 0.3))
-"""Visible-fraction bands [lo, hi) of the table."""
 FACTORS = (0.8, 0.85, 0.9, 0.95, 1.0, 1.05, 1.1, 1.15, 1.2, 1.25)
-
-
-def band_of(visib: float) -> int:
-    """Index into BANDS of a visible fraction."""
-    return next(i for i, (lo, hi) in enumerate(BANDS) if lo <= visib < hi)
 
 
 def responses(likelihood, scene, obj_id: int, factors: np.ndarray, every: int):
@@ -49,7 +43,7 @@ def responses(likelihood, scene, obj_id: int, factors: np.ndarray, every: int):
         t = np.asarray(gt.t, dtype=np.float64)[None] * factors[:, None]
         R = np.broadcast_to(np.asarray(gt.R, dtype=np.float64), (len(factors), 3, 3))
         scores = likelihood.score(frame, R, t)
-        yield band_of(scene.gt_info[im][i].visib_fract), scores.L, scores.C
+        yield band_index(scene.gt_info[im][i].visib_fract), scores.L, scores.C
 
 
 def table(rows: dict[int, list], factors: np.ndarray) -> str:
@@ -59,7 +53,7 @@ def table(rows: dict[int, list], factors: np.ndarray) -> str:
     for b, got in sorted(rows.items()):
         L = np.array([g[0] for g in got])
         C = np.array([g[1] for g in got])
-        name = f"{BANDS[b][0]:.1f}-{min(BANDS[b][1], 1.0):.1f}"
+        name = f"{BANDS[b][0]:.1f}-{BANDS[b][1]:.1f}"
         best = np.bincount(L.argmax(axis=1), minlength=len(factors))
         for what, vals in (("L", L.mean(0)), ("C", C.mean(0))):
             lines.append(
@@ -78,7 +72,7 @@ def draw(rows: dict[int, list], factors: np.ndarray, path: Path, title: str) -> 
 
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharex=True)
     for b, got in sorted(rows.items()):
-        label = f"{BANDS[b][0]:.1f}-{min(BANDS[b][1], 1.0):.1f} visible ({len(got)})"
+        label = f"{BANDS[b][0]:.1f}-{BANDS[b][1]:.1f} visible ({len(got)})"
         for ax, k in zip(axes, (0, 1), strict=True):
             ax.plot(factors, np.mean([g[k] for g in got], axis=0), marker="o", label=label)
     for ax, name in zip(axes, ("L (autoencoder)", "C (classifier)"), strict=True):

@@ -86,13 +86,19 @@ def truth_scores(seqs: list[Sequence]) -> dict[str, np.ndarray]:
     return {b: np.asarray(r, dtype=np.float64) for b, r in rows.items()}
 
 
+def band_index(visib: float) -> int:
+    """Index into BANDS of a visible fraction in [0, 1]."""
+    return next(i for i, (lo, hi) in enumerate(BANDS) if lo <= visib < hi or visib >= hi == 1.0)
+
+
 def band_rows(scores: dict[str, np.ndarray]) -> list[tuple[Any, ...]]:
     """HEADER rows: per bundle and visibility band, frames, mean C, % aligned, mean L (at the
     truth), mean C of the near poses."""
     out = []
     for bundle, s in scores.items():
-        for lo, hi in BANDS:
-            k = (s[:, 0] >= lo) & ((s[:, 0] < hi) | (hi == 1.0))
+        bands = np.array([band_index(v) for v in s[:, 0]])
+        for i, (lo, hi) in enumerate(BANDS):
+            k = bands == i
             if not k.any():
                 continue
             c, lik, near = s[k, 1], s[k, 2], s[k, 3]
