@@ -239,6 +239,12 @@ def default_config() -> dict[str, dict[str, Any]]:
     return to_dict(GenConfig())
 
 
+def data_pairs_config(manifest: dict[str, Any]) -> dict[str, Any]:
+    """The ``pairs`` section a pairs folder was made with, from its manifest (the defaults for
+    keys that its manifest predates)."""
+    return default_config()["pairs"] | manifest.get("config", {}).get("pairs", {})
+
+
 def load_config(path: str | Path | None = None, sets: list[str] | None = None) -> dict:
     """Defaults, updated by the YAML file ``path`` and then by ``sets`` ("section.key=value"),
     as a two-level dict; ConfigError (one line) names the file (or --set) and the key."""

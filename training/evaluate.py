@@ -38,7 +38,7 @@ from chpf.console import run_main
 from chpf.errors import ConfigError
 from chpf.objects import MESH_UNITS
 from data_gen.compose import depth_off
-from data_gen.config import default_config
+from data_gen.config import data_pairs_config
 from training.checkpoints import load_autoencoder, load_classifier
 from training.data import open_shards, shard_crop_size
 from training.lit import classifier_metrics, load_codebook_npz, pair_subsets
@@ -189,8 +189,7 @@ def evaluate_pairs(
     y = 1 - data["aligned"].astype(np.int64)  # 1 = misaligned
     visib = data["visib_fract"]
     pos, hard, occl, empty = pair_subsets(y, data["angle_deg"], visib, hard_deg, occluded_visib)
-    pairs_cfg = default_config()["pairs"]
-    pairs_cfg.update(open_shards(pairs_dir, "pairs").manifest.get("config", {}).get("pairs", {}))
+    pairs_cfg = data_pairs_config(open_shards(pairs_dir, "pairs").manifest)
     off = (y == 1) & ~empty & depth_off(data["depth_ratio"], pairs_cfg)  # scale negatives
     clear = pos & (visib >= clear_visib)
     out: dict[str, Any] = {

@@ -24,7 +24,7 @@ import torch.nn.functional as F
 from chpf.config_schema import to_dict
 from chpf.errors import ChpfError, ConfigError, DatasetError
 from data_gen.compose import depth_off
-from data_gen.config import default_config
+from data_gen.config import data_pairs_config
 from training.batch_augment import BatchAugment, augment_batch
 from training.checkpoints import (
     CHECKPOINT_FORMAT_VERSION,
@@ -888,10 +888,8 @@ class CHLitModule(_ChpfModule):
                 "nearest entry",
                 stacklevel=2,
             )
-        pairs_cfg = default_config()["pairs"]
-        pairs_cfg.update(data_cfg.get("pairs", {}))
-        self._data_pairs_cfg = dict(pairs_cfg)  # how the data's crops were cut (depth_off)
-        pairs_cfg.update(mix_overrides(self.extra_pairs_mix))
+        self._data_pairs_cfg = data_pairs_config(manifest)  # how its crops were cut (depth_off)
+        pairs_cfg = self._data_pairs_cfg | mix_overrides(self.extra_pairs_mix)
         info = manifest.get("object_info")
         self._candidates = CandidateCodebook(cb["rotations"], emb, pairs_cfg, info)
         self._pair_rng = np.random.default_rng([torch.initial_seed(), self.global_rank])
