@@ -46,6 +46,11 @@ def responses(likelihood, scene, obj_id: int, factors: np.ndarray, every: int):
         yield band_index(scene.gt_info[im][i].visib_fract), scores.L, scores.C
 
 
+def band_name(b: int) -> str:
+    """Band ``b`` of BANDS as "lo-hi"."""
+    return f"{BANDS[b][0]:.1f}-{BANDS[b][1]:.1f}"
+
+
 def table(rows: dict[int, list], factors: np.ndarray) -> str:
     """The printed table: per band, mean L, mean C and argmax-L counts per factor."""
     head = "| band | n | | " + " | ".join(f"{f:g}" for f in factors) + " |"
@@ -53,7 +58,7 @@ def table(rows: dict[int, list], factors: np.ndarray) -> str:
     for b, got in sorted(rows.items()):
         L = np.array([g[0] for g in got])
         C = np.array([g[1] for g in got])
-        name = f"{BANDS[b][0]:.1f}-{BANDS[b][1]:.1f}"
+        name = band_name(b)
         best = np.bincount(L.argmax(axis=1), minlength=len(factors))
         for what, vals in (("L", L.mean(0)), ("C", C.mean(0))):
             lines.append(
@@ -72,7 +77,7 @@ def draw(rows: dict[int, list], factors: np.ndarray, path: Path, title: str) -> 
 
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharex=True)
     for b, got in sorted(rows.items()):
-        label = f"{BANDS[b][0]:.1f}-{BANDS[b][1]:.1f} visible ({len(got)})"
+        label = f"{band_name(b)} visible ({len(got)})"
         for ax, k in zip(axes, (0, 1), strict=True):
             ax.plot(factors, np.mean([g[k] for g in got], axis=0), marker="o", label=label)
     for ax, name in zip(axes, ("L (autoencoder)", "C (classifier)"), strict=True):
@@ -96,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--factors", default=",".join(f"{f:g}" for f in FACTORS))
     p.add_argument("--figure", type=Path, default=None, help="PNG of both curves")
     args = p.parse_args(argv)
-    from chpf.bop import BopScene
+    from chpf.bop import BopDataset
     from chpf.bundle import Bundle
     from chpf.tracking.bundle_likelihood import BundleLikelihood
 
@@ -107,7 +112,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     likelihood = BundleLikelihood(Bundle.load(path, spin=False), c_mode="learned")
     rows: dict[int, list] = {}
     for seq in seqs:
-        scene = BopScene(Path(seq.root) / "test" / f"{seq.scene_id:06d}")
+        scene = BopDataset(seq.root).scene("test", seq.scene_id)
         for b, L, C in responses(likelihood, scene, seq.obj_id, factors, max(args.every, 1)):
             rows.setdefault(b, []).append((L, C))
     print(f"bundle {path}, suite {suite.name}: L and C at the true pose, depth times f")
