@@ -53,6 +53,13 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
    ``Scores.reference`` (L_ref, C_ref), what a pose can score on this frame's view of the
    object. Under occlusion they fall with the visible part as the true pose's do.
 
+9. silhouette (``c_silhouette``, a power p, None = off; CH-PF's C): the alignment a of each
+   hypothesis's projected outline with the image's edges (chpf.tracking.silhouette), and C
+   becomes 1 - (1 - C)(1 - C_sil) with C_sil = 1 - (a / max a)^p over the hypotheses weighed
+   together. Unlike the crops, the outline sees a depth error: at the true orientation of the
+   development suite's unoccluded frames the alignment peaks at the true depth (not 5 % off)
+   on 132 of 137 frames.
+
 Particles with z below ``z_min`` (behind or at the camera) get c = -1 (L = 0) and C = 1.
 """
 
@@ -72,6 +79,11 @@ from chpf.tracking.config import BOX_SHAPES, C_MODES, L_FROM_COS
 from chpf.tracking.depth_scores import depth_scores
 from chpf.tracking.model_outline import outline_points
 from chpf.tracking.rotation_diffusion import neighbour_table
+from chpf.tracking.silhouette import (
+    SilhouetteEdges,
+    outline_scale,
+    silhouette_counter_evidence,
+)
 from chpf.tracking.strategies import CHPF_REFERENCES, either
 from chpf.tracking.timing import ms_since
 from chpf.tracking.types import CodebookScores, Frame, Reference, Scores
@@ -141,6 +153,7 @@ class BundleLikelihood:
         c_box: float | None = None,
         c_box_shape: str = "gauss",
         c_edge: float | None = None,
+        c_silhouette: float | None = None,
         refine_neighbours: int = 0,
         reference: str = "none",
     ) -> None:
@@ -170,7 +183,11 @@ class BundleLikelihood:
         self.c_box = c_box
         self.c_box_shape = c_box_shape
         self.c_edge = c_edge
+        self.c_silhouette = c_silhouette
         self._outline: np.ndarray | None = None  # ``outline``, made on first use
+        self.silhouette: SilhouetteEdges | None = None
+        if c_silhouette is not None:
+            self.silhouette = SilhouetteEdges(self.outline * outline_scale(bundle, self.outline))
         self.reference = reference
         # the cue box's crop rides along in the particles' encoder pass once it has been asked
         # for (_cue_embedding): (crop (S,S,3), its AE embedding (1,E)) of the last, or None
@@ -288,6 +305,7 @@ class BundleLikelihood:
         C_edge = None
         if C is not None:
             C_box, C_edge = self._box_evidence(frame, R if R_moved is None else R_moved, t)
+            C = either(C, self._silhouette(frame, R if R_moved is None else R_moved, t))
             C = np.where(behind, 1.0, either(C, C_box))
         ref = self.frame_reference(frame)
         return Scores(L=L, w=w, C=C, stage_ms=ms, R=R_moved, reference=ref, C_edge=C_edge)
@@ -308,6 +326,17 @@ class BundleLikelihood:
         G = self.grid.rotations
         moved = G[best] @ np.swapaxes(G[idx], -1, -2) @ R_allo
         return best, cos[rows, j], R_ray @ moved  # allocentric_to_egocentric(moved, t)
+
+    def _silhouette(self, frame: Frame, R: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+        """C_sil (N,) of poses R (N,3,3), t (N,3) (chpf.tracking.silhouette; 1 behind the
+        camera), None when off."""
+        if self.silhouette is None or self.c_silhouette is None:
+            return None
+        ok = t[:, 2] >= self.z_min
+        a = np.zeros(t.shape[0])
+        if ok.any():
+            a[ok] = self.silhouette.alignment(frame.rgb, frame.K, R[ok], t[ok])
+        return np.where(ok, silhouette_counter_evidence(a, self.c_silhouette), 1.0)
 
     @property
     def outline(self) -> np.ndarray:

@@ -153,6 +153,8 @@ class CHPFConfig(Section):
     m) of the box-scale counter-evidence added to C (None = none; chpf.tracking.bundle_likelihood)
     and c_box_shape its shape (BOX_SHAPES); c_edge, the margin of the box-edge counter-evidence
     (Scores.C_edge; None = off), which alpha counts and the weights do not;
+    c_silhouette, the power p of the silhouette's counter-evidence 1 - (a / max a)^p added to C
+    (chpf.tracking.silhouette; None = off);
     c_weight, the exponent k of the importance weights w (1 - C)^k (0 = the paper's: C only
     sets alpha); keep_belief, the round(alpha N) particles drawn from phi_cand join N resampled
     from the belief (N + round(alpha N) weighed at the next frame) instead of replacing
@@ -167,6 +169,7 @@ class CHPFConfig(Section):
     c_box: float | None = setting(0.1, gt=0.0)
     c_box_shape: BoxShape = "gauss"
     c_edge: float | None = setting(0.2, gt=0.0)
+    c_silhouette: float | None = setting(None, gt=0.0)
     c_weight: float = setting(1.0, ge=0.0)
     keep_belief: bool = True
     temper: float = setting(1.0, ge=0.0, le=1.0)

@@ -1,0 +1,150 @@
+"""The silhouette's edges: how well a hypothesis's outline meets the image's intensity edges.
+
+Neither network sees a wrong depth well: their crops are scale-normalised, so a hypothesis 5 %
+too far shows the object only 5 % larger in its crop, and the autoencoder's cosine barely
+moves (docs/chpf-ablations.md). The object's outline does: projected at the true pose, its
+silhouette lies on the image's edges; moved along the ray (or turned), it leaves them. For N
+hypotheses R (N,3,3), t (N,3) metres:
+
+1. project the bundle's outline points (chpf.tracking.model_outline, scaled by
+   ``outline_scale``) at each pose and take their 2D convex hull;
+2. sample ``samples`` points evenly along the hull with its outward normals n;
+3. the alignment a = mean |grad I(u) . n| over the samples (Sobel gradients of the grey image,
+   bilinear; 0 off the image);
+4. CH-PF's option ``chpf.c_silhouette`` (a power p) adds C_sil = 1 - (a / max a)^p, the max
+   over the hypotheses weighed together: the evidence against a hypothesis whose outline meets
+   the image's edges worse than the set's best does.
+
+For a convex object the hull is the silhouette; for another it is the silhouette's hull, whose
+straight runs over concavities meet edges only by chance. A background of long straight edges
+(a brick wall) offers a box's outline places to lie on: there the cue misleads
+(docs/chpf-ablations.md).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from chpf.bundle import Bundle
+
+
+def outline_scale(bundle: Bundle, points: np.ndarray, views: int = 500) -> float:
+    """Factor that shrinks the outline points (M,3) (object frame) to the object's size.
+
+    The points come from depth pixels of the codebook's crops, each the mean of an f x f block
+    valid when at least half of it is (chpf.bundle): a block that the silhouette covers from
+    ceil(f/2) of its f sub-columns on is counted, so the silhouette spreads on average by
+    (0.5 - (ceil(f/2) - 0.5) / f) pixels per side, and the hull of the points from many views
+    takes the outermost of them. This is the median, over ``views`` codebook entries, of the
+    entry's silhouette extent (occupied columns and rows, less that spread) over the extent of
+    the points projected at the entry's pose."""
+    if len(points) < 2:
+        return 1.0
+    f = max(bundle.spec.size // bundle.depth_size, 1)
+    spread = 2.0 * (0.5 - (np.ceil(f / 2.0) - 0.5) / f)
+    idx = np.unique(np.linspace(0, bundle.codebook_size - 1, views).round().astype(np.int64))
+    K = bundle.depth_K
+    ratios = []
+    for k, depth in zip(idx, bundle.codebook_depth(idx), strict=True):
+        mask = depth > 0
+        if not mask.any():
+            continue
+        cam = points @ bundle.grid.rotations[k].T + bundle.spec.translation
+        uv = cam[:, :2] / cam[:, 2:] * np.diag(K)[:2]
+        projected = uv.max(axis=0) - uv.min(axis=0)
+        for axis, side in ((0, projected[0]), (1, projected[1])):
+            occupied = np.flatnonzero(mask.any(axis=axis))
+            ratios.append((occupied[-1] - occupied[0] + 1 - spread) / max(side, 1e-6))
+    return float(np.median(ratios)) if ratios else 1.0
+
+
+def edge_gradients(rgb: np.ndarray) -> np.ndarray:
+    """Sobel gradients (2,H,W) float32 (x, y) of the grey image of rgb (H,W,3) uint8, per
+    pixel in grey levels / 255."""
+    grey = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
+    return np.stack(
+        [cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)]
+    )
+
+
+def hull_samples(uv: np.ndarray, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """``samples`` points (S,2) evenly spaced along the 2D convex hull of points uv (M,2) pixels,
+    and the hull's outward unit normals (S,2) there."""
+    hull = cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2).astype(np.float64)
+    if len(hull) < 3:
+        return np.repeat(uv.mean(axis=0, keepdims=True), samples, 0), np.zeros((samples, 2))
+    edges = np.roll(hull, -1, axis=0) - hull
+    lengths = np.linalg.norm(edges, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(lengths)])
+    at = (np.arange(samples) + 0.5) * cum[-1] / samples
+    seg = np.clip(np.searchsorted(cum, at, side="right") - 1, 0, len(hull) - 1)
+    frac = (at - cum[seg]) / np.maximum(lengths[seg], 1e-9)
+    points = hull[seg] + frac[:, None] * edges[seg]
+    # cv2.convexHull orders the points clockwise in image coordinates (y down), so the
+    # outward normal of an edge (dx, dy) is (dy, -dx) up to orientation: fix it by the centre
+    normals = np.stack([edges[seg, 1], -edges[seg, 0]], axis=1)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
+    outward = np.sign(np.sum((points - hull.mean(axis=0)) * normals, axis=1, keepdims=True))
+    return points, normals * np.where(outward == 0, 1.0, outward)
+
+
+def sample_bilinear(grad: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Gradients (P,2) of grad (2,H,W) at points (P,2) pixels (x, y), bilinear; 0 outside."""
+    h, w = grad.shape[1:]
+    x, y = points[:, 0], points[:, 1]
+    inside = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
+    x0 = np.clip(np.floor(x).astype(np.int64), 0, w - 2)
+    y0 = np.clip(np.floor(y).astype(np.int64), 0, h - 2)
+    fx = np.clip(x - x0, 0.0, 1.0)[None]
+    fy = np.clip(y - y0, 0.0, 1.0)[None]
+    g = (
+        grad[:, y0, x0] * (1 - fx) * (1 - fy)
+        + grad[:, y0, x0 + 1] * fx * (1 - fy)
+        + grad[:, y0 + 1, x0] * (1 - fx) * fy
+        + grad[:, y0 + 1, x0 + 1] * fx * fy
+    )
+    return np.where(inside[None], g, 0.0).T
+
+
+class SilhouetteEdges:
+    """How well each pose hypothesis's outline meets the image's edges (module docstring).
+
+    points: (M,3) metres, object frame, the outline points at the object's size (the bundle's
+    ``outline_points`` times ``outline_scale``). samples: points along the hull.
+    """
+
+    def __init__(self, points: np.ndarray, samples: int = 64) -> None:
+        self.points = np.asarray(points, dtype=np.float64)
+        self.samples = int(samples)
+        self._grad: tuple[int, np.ndarray] | None = None  # (id of the rgb, its gradients)
+
+    def gradients(self, rgb: np.ndarray) -> np.ndarray:
+        """edge_gradients of rgb, kept for the frame last asked about."""
+        if self._grad is None or self._grad[0] != id(rgb):
+            self._grad = (id(rgb), edge_gradients(rgb))
+        return self._grad[1]
+
+    def alignment(self, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray):
+        """Alignment a (N,) >= 0 of hypotheses R (N,3,3), t (N,3) metres (z > 0) on rgb
+        (H,W,3) uint8 with intrinsics K (3,3): mean |grad I . n| over ``samples`` points of the
+        projected outline's hull (grey levels / 255 per pixel, Sobel)."""
+        grad = self.gradients(rgb)
+        K = np.asarray(K, dtype=np.float64)
+        cam = np.matmul(R, self.points.T) + t[:, :, None]  # (N,3,M)
+        uv = np.stack([cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]], axis=-1)
+        uv = uv * K[[0, 1], [0, 1]] + K[:2, 2]
+        hulls = [hull_samples(uv[i], self.samples) for i in range(len(t))]
+        pts = np.stack([h[0] for h in hulls])  # (N,S,2)
+        normals = np.stack([h[1] for h in hulls])
+        g = sample_bilinear(grad, pts.reshape(-1, 2)).reshape(pts.shape)
+        return np.abs(np.sum(g * normals, axis=-1)).mean(axis=1)
+
+
+def silhouette_counter_evidence(alignment: np.ndarray, power: float) -> np.ndarray:
+    """C_sil (N,) in [0, 1] of alignments (N,) >= 0: 1 - (a / max a)^power; 0 for every
+    hypothesis when no outline meets an edge."""
+    top = float(np.max(alignment)) if alignment.size else 0.0
+    if top <= 0.0:
+        return np.zeros_like(alignment, dtype=np.float64)
+    return 1.0 - (alignment / top) ** power
