@@ -117,19 +117,12 @@ class SilhouetteEdges:
     def __init__(self, points: np.ndarray, samples: int = 64) -> None:
         self.points = np.asarray(points, dtype=np.float64)
         self.samples = int(samples)
-        self._grad: tuple[int, np.ndarray] | None = None  # (id of the rgb, its gradients)
 
-    def gradients(self, rgb: np.ndarray) -> np.ndarray:
-        """edge_gradients of rgb, kept for the frame last asked about."""
-        if self._grad is None or self._grad[0] != id(rgb):
-            self._grad = (id(rgb), edge_gradients(rgb))
-        return self._grad[1]
-
-    def alignment(self, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray):
+    def alignment(self, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Alignment a (N,) >= 0 of hypotheses R (N,3,3), t (N,3) metres (z > 0) on rgb
         (H,W,3) uint8 with intrinsics K (3,3): mean |grad I . n| over ``samples`` points of the
         projected outline's hull (grey levels / 255 per pixel, Sobel)."""
-        grad = self.gradients(rgb)
+        grad = edge_gradients(rgb)
         K = np.asarray(K, dtype=np.float64)
         cam = np.matmul(R, self.points.T) + t[:, :, None]  # (N,3,M)
         uv = np.stack([cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]], axis=-1)
