@@ -69,24 +69,41 @@ def edge_gradients(rgb: np.ndarray) -> np.ndarray:
 
 
 def hull_samples(uv: np.ndarray, samples: int) -> tuple[np.ndarray, np.ndarray]:
-    """``samples`` points (S,2) evenly spaced along the 2D convex hull of points uv (M,2) pixels,
-    and the hull's outward unit normals (S,2) there."""
-    hull = cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2).astype(np.float64)
-    if len(hull) < 3:
-        return np.repeat(uv.mean(axis=0, keepdims=True), samples, 0), np.zeros((samples, 2))
-    edges = np.roll(hull, -1, axis=0) - hull
-    lengths = np.linalg.norm(edges, axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(lengths)])
-    at = (np.arange(samples) + 0.5) * cum[-1] / samples
-    seg = np.clip(np.searchsorted(cum, at, side="right") - 1, 0, len(hull) - 1)
-    frac = (at - cum[seg]) / np.maximum(lengths[seg], 1e-9)
-    points = hull[seg] + frac[:, None] * edges[seg]
+    """``samples`` points (N,S,2) evenly spaced along the 2D convex hull of each point set uv
+    (N,M,2) pixels, and the hull's outward unit normals (N,S,2) there. A hull of fewer than 3
+    vertices gives its points' mean with zero normals."""
+    hulls = [cv2.convexHull(p.astype(np.float32)).reshape(-1, 2) for p in uv]
+    n, h_max = len(hulls), max(len(h) for h in hulls)
+    verts = np.empty((n, h_max + 1, 2))  # each hull closed, padded with its first vertex
+    count = np.array([len(h) for h in hulls])
+    for i, h in enumerate(hulls):
+        verts[i, : len(h)] = h
+        verts[i, len(h) :] = h[0]
+    edges = np.diff(verts, axis=1)  # (N,H,2); the padding's edges have length 0
+    lengths = np.linalg.norm(edges, axis=2)
+    cum = np.concatenate([np.zeros((n, 1)), np.cumsum(lengths, axis=1)], axis=1)  # (N,H+1)
+    total = np.maximum(cum[:, -1:], 1e-9)
+    at = (np.arange(samples) + 0.5) / samples * total  # (N,S)
+    # one searchsorted for all rows: row i's positions shifted by 2 i (each row spans [0, 1])
+    shift = 2.0 * np.arange(n)[:, None]
+    flat = np.searchsorted((cum / total + shift).ravel(), (at / total + shift).ravel(), "right")
+    seg = np.clip(flat.reshape(n, samples) - 1 - np.arange(n)[:, None] * (h_max + 1), 0, h_max - 1)
+    rows = np.arange(n)[:, None]
+    frac = (at - cum[rows, seg]) / np.maximum(lengths[rows, seg], 1e-9)
+    points = verts[rows, seg] + frac[..., None] * edges[rows, seg]
     # cv2.convexHull orders the points clockwise in image coordinates (y down), so the
     # outward normal of an edge (dx, dy) is (dy, -dx) up to orientation: fix it by the centre
-    normals = np.stack([edges[seg, 1], -edges[seg, 0]], axis=1)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
-    outward = np.sign(np.sum((points - hull.mean(axis=0)) * normals, axis=1, keepdims=True))
-    return points, normals * np.where(outward == 0, 1.0, outward)
+    normals = np.stack([edges[rows, seg, 1], -edges[rows, seg, 0]], axis=-1)
+    normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-9)
+    valid = np.arange(h_max)[None, :] < count[:, None]  # (N,H)
+    centre = (verts[:, :h_max] * valid[..., None]).sum(axis=1) / count[:, None]
+    outward = np.sign(np.sum((points - centre[:, None]) * normals, axis=-1, keepdims=True))
+    normals = normals * np.where(outward == 0, 1.0, outward)
+    flat_hull = count < 3
+    if flat_hull.any():
+        points[flat_hull] = uv[flat_hull].mean(axis=1, keepdims=True)
+        normals[flat_hull] = 0.0
+    return points, normals
 
 
 def sample_bilinear(grad: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -127,9 +144,7 @@ class SilhouetteEdges:
         cam = np.matmul(R, self.points.T) + t[:, :, None]  # (N,3,M)
         uv = np.stack([cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]], axis=-1)
         uv = uv * K[[0, 1], [0, 1]] + K[:2, 2]
-        hulls = [hull_samples(uv[i], self.samples) for i in range(len(t))]
-        pts = np.stack([h[0] for h in hulls])  # (N,S,2)
-        normals = np.stack([h[1] for h in hulls])
+        pts, normals = hull_samples(uv, self.samples)  # (N,S,2) each
         g = sample_bilinear(grad, pts.reshape(-1, 2)).reshape(pts.shape)
         return np.abs(np.sum(g * normals, axis=-1)).mean(axis=1)
 

@@ -20,9 +20,17 @@ from chpf.tracking.silhouette import (
 )
 
 
-def test_hull_samples_lie_on_the_hull_with_outward_unit_normals() -> None:
+def test_hull_samples_lie_on_each_hull_with_outward_unit_normals() -> None:
     square = np.array([[10.0, 10.0], [30.0, 10.0], [30.0, 30.0], [10.0, 30.0], [20.0, 20.0]])
-    points, normals = hull_samples(square, 40)
+    triangle = np.array([[0.0, 0.0], [40.0, 0.0], [0.0, 30.0], [5.0, 5.0], [1.0, 1.0]])
+    points, normals = hull_samples(np.stack([triangle, square]), 40)
+    # the triangle (perimeter 120): samples 3 pixels apart on its three sides
+    tri, tri_n = points[0], normals[0]
+    on_side = np.minimum(np.abs(tri[:, 0]), np.abs(tri[:, 1]))
+    on_side = np.minimum(on_side, np.abs(tri[:, 0] / 40.0 + tri[:, 1] / 30.0 - 1.0) * 24.0)
+    assert np.allclose(on_side, 0.0, atol=1e-9)
+    assert np.all(np.sum((tri - [40 / 3, 10.0]) * tri_n, axis=1) > 0)
+    points, normals = points[1], normals[1]
     on_edge = np.minimum(np.abs(points - 10.0), np.abs(points - 30.0)).min(axis=1)
     assert np.allclose(on_edge, 0.0, atol=1e-9)
     assert np.allclose(np.linalg.norm(normals, axis=1), 1.0)
