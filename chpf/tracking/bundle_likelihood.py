@@ -77,7 +77,7 @@ from chpf.geometry import allocentric_to_egocentric, ray_rotation
 from chpf.tracking.candidates import box_translations, valid_box
 from chpf.tracking.config import BOX_SHAPES, C_MODES, L_FROM_COS
 from chpf.tracking.depth_scores import depth_scores
-from chpf.tracking.model_outline import outline_points
+from chpf.tracking.model_outline import outline_points, project_outline
 from chpf.tracking.rotation_diffusion import neighbour_table
 from chpf.tracking.silhouette import (
     SilhouetteEdges,
@@ -335,7 +335,7 @@ class BundleLikelihood:
         ok = t[:, 2] >= self.z_min
         a = np.zeros(t.shape[0])
         if ok.any():
-            a[ok] = self.silhouette.alignment(frame.rgb, frame.K, R[ok], t[ok])
+            a[ok] = self.silhouette.alignment(frame.rgb, frame.K, R[ok], t[ok], self.z_min)
         return np.where(ok, silhouette_counter_evidence(a, self.c_silhouette), 1.0)
 
     @property
@@ -349,11 +349,8 @@ class BundleLikelihood:
     def _projected_boxes(self, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> np.ndarray:
         """Boxes (N,4) pixels (x0, y0, x1, y1) of the model's outline points projected at
         poses R (N,3,3), t (N,3) metres (depths clamped to z_min)."""
-        cam = np.matmul(R, self.outline.T) + t[:, :, None]  # (N,3,M)
-        z = np.maximum(cam[:, 2], self.z_min)
-        u = K[0, 0] * cam[:, 0] / z + K[0, 2]
-        v = K[1, 1] * cam[:, 1] / z + K[1, 2]
-        return np.stack([u.min(axis=1), v.min(axis=1), u.max(axis=1), v.max(axis=1)], axis=1)
+        uv = project_outline(self.outline, R, t, K, self.z_min)  # (N,M,2)
+        return np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)
 
     def _box_evidence(
         self, frame: Frame, R: np.ndarray, t: np.ndarray

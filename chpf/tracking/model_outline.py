@@ -38,3 +38,13 @@ def outline_points(bundle: Bundle, views: int = 300) -> np.ndarray:
     if len(pts) < 4:
         return pts
     return pts[ConvexHull(pts).vertices]
+
+
+def project_outline(
+    points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray, z_min: float
+) -> np.ndarray:
+    """Pixels (N,M,2) (u, v) of points (M,3) metres, object frame, seen at poses R (N,3,3),
+    t (N,3) metres with intrinsics K (3,3); depths clamped to at least z_min metres."""
+    cam = np.matmul(R, points.T) + t[:, :, None]  # (N,3,M)
+    z = np.maximum(cam[:, 2], z_min)
+    return np.stack([K[0, 0] * cam[:, 0] / z + K[0, 2], K[1, 1] * cam[:, 1] / z + K[1, 2]], -1)

@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from chpf.bundle import Bundle
+from chpf.tracking.model_outline import project_outline
 
 
 def outline_scale(bundle: Bundle, points: np.ndarray, views: int = 500) -> float:
@@ -135,15 +136,15 @@ class SilhouetteEdges:
         self.points = np.asarray(points, dtype=np.float64)
         self.samples = int(samples)
 
-    def alignment(self, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Alignment a (N,) >= 0 of hypotheses R (N,3,3), t (N,3) metres (z > 0) on rgb
-        (H,W,3) uint8 with intrinsics K (3,3): mean |grad I . n| over ``samples`` points of the
-        projected outline's hull (grey levels / 255 per pixel, Sobel)."""
+    def alignment(
+        self, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray, z_min: float
+    ) -> np.ndarray:
+        """Alignment a (N,) >= 0 of hypotheses R (N,3,3), t (N,3) metres on rgb (H,W,3) uint8
+        with intrinsics K (3,3): mean |grad I . n| over ``samples`` points of the projected
+        outline's hull (grey levels / 255 per pixel, Sobel; the outline's depths clamped to at
+        least z_min metres)."""
         grad = edge_gradients(rgb)
-        K = np.asarray(K, dtype=np.float64)
-        cam = np.matmul(R, self.points.T) + t[:, :, None]  # (N,3,M)
-        uv = np.stack([cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]], axis=-1)
-        uv = uv * K[[0, 1], [0, 1]] + K[:2, 2]
+        uv = project_outline(self.points, R, t, np.asarray(K, dtype=np.float64), z_min)
         pts, normals = hull_samples(uv, self.samples)  # (N,S,2) each
         g = sample_bilinear(grad, pts.reshape(-1, 2)).reshape(pts.shape)
         return np.abs(np.sum(g * normals, axis=-1)).mean(axis=1)

@@ -86,8 +86,8 @@ def test_the_outline_meets_the_edges_best_at_the_true_depth(box_bundle: Bundle) 
         R = np.repeat(np.asarray(gt.R)[None], 3, axis=0)
         t = np.asarray(gt.t)[None] * factors[:, None]
         rgb = scene.rgb(im)
-        wins += int(np.argmax(edges.alignment(rgb, DEMO_K, R, t)) == 1)
-        raw_far += int(np.argmax(raw.alignment(rgb, DEMO_K, R, t)) == 2)
+        wins += int(np.argmax(edges.alignment(rgb, DEMO_K, R, t, 0.05)) == 1)
+        raw_far += int(np.argmax(raw.alignment(rgb, DEMO_K, R, t, 0.05)) == 2)
         total += 1
     assert total >= 5
     assert wins >= 0.7 * total
