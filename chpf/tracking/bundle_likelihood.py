@@ -304,8 +304,9 @@ class BundleLikelihood:
             C = 0.5 * (C + self.depth_no_data)
         C_edge = None
         if C is not None:
-            C_box, C_edge = self._box_evidence(frame, R if R_moved is None else R_moved, t)
-            C = either(C, self._silhouette(frame, R if R_moved is None else R_moved, t))
+            R_scored = R if R_moved is None else R_moved
+            C_box, C_edge = self._box_evidence(frame, R_scored, t)
+            C = either(C, self._silhouette(frame, R_scored, t))
             C = np.where(behind, 1.0, either(C, C_box))
         ref = self.frame_reference(frame)
         return Scores(L=L, w=w, C=C, stage_ms=ms, R=R_moved, reference=ref, C_edge=C_edge)

@@ -45,15 +45,14 @@ def outline_scale(bundle: Bundle, points: np.ndarray, views: int = 500) -> float
     f = max(bundle.spec.size // bundle.depth_size, 1)
     spread = 2.0 * (0.5 - (np.ceil(f / 2.0) - 0.5) / f)
     idx = np.unique(np.linspace(0, bundle.codebook_size - 1, views).round().astype(np.int64))
-    K = bundle.depth_K
+    t = np.broadcast_to(bundle.spec.translation, (len(idx), 3))
+    uv = project_outline(points, bundle.grid.rotations[idx], t, bundle.depth_K, 1e-6)
+    sides = uv.max(axis=1) - uv.min(axis=1)  # (V,2) projected extents, pixels
     ratios = []
-    for k, depth in zip(idx, bundle.codebook_depth(idx), strict=True):
+    for depth, projected in zip(bundle.codebook_depth(idx), sides, strict=True):
         mask = depth > 0
         if not mask.any():
             continue
-        cam = points @ bundle.grid.rotations[k].T + bundle.spec.translation
-        uv = cam[:, :2] / cam[:, 2:] * np.diag(K)[:2]
-        projected = uv.max(axis=0) - uv.min(axis=0)
         for axis, side in ((0, projected[0]), (1, projected[1])):
             occupied = np.flatnonzero(mask.any(axis=axis))
             ratios.append((occupied[-1] - occupied[0] + 1 - spread) / max(side, 1e-6))
