@@ -1,24 +1,28 @@
-"""The silhouette's edges: how well a hypothesis's outline meets the image's intensity edges.
+"""The silhouette: how well a hypothesis's projected outline fits the image.
 
 Neither network sees a wrong depth well: their crops are scale-normalised, so a hypothesis 5 %
 too far shows the object only 5 % larger in its crop, and the autoencoder's cosine barely
 moves (docs/chpf-ablations.md). The object's outline does: projected at the true pose, its
-silhouette lies on the image's edges; moved along the ray (or turned), it leaves them. For N
-hypotheses R (N,3,3), t (N,3) metres:
+silhouette separates the object from its surroundings; moved along the ray (or turned), it
+cuts through one or the other. For N hypotheses R (N,3,3), t (N,3) metres:
 
 1. project the bundle's outline points (chpf.tracking.model_outline, scaled by
    ``outline_scale``) at each pose and take their 2D convex hull;
 2. sample ``samples`` points evenly along the hull with its outward normals n;
-3. the alignment a = mean |grad I(u) . n| over the samples (Sobel gradients of the grey image,
-   bilinear; 0 off the image);
+3. the alignment a, one of two cues:
+   - ``SilhouetteRegion`` (CH-PF's default): the contrast 1 - BC(h_in, h_out) of the colour
+     histograms of two bands of points just inside and just outside the hull, as
+     region-based trackers (PWP3D, RBOT) separate an object from its background;
+   - ``SilhouetteEdges``: the mean |grad I(u) . n| over the samples (Sobel gradients of the
+     grey image, bilinear; 0 off the image);
 4. CH-PF's option ``chpf.c_silhouette`` (a power p) adds C_sil = 1 - (a / max a)^p, the max
-   over the hypotheses weighed together: the evidence against a hypothesis whose outline meets
-   the image's edges worse than the set's best does.
+   over the hypotheses weighed together and the box's single-frame estimate: the evidence
+   against a hypothesis whose outline fits the image worse than the best of them does.
 
 For a convex object the hull is the silhouette; for another it is the silhouette's hull, whose
-straight runs over concavities meet edges only by chance. A background of long straight edges
-(a brick wall) offers a box's outline places to lie on: there the cue misleads
-(docs/chpf-ablations.md).
+straight runs over concavities cross background. A background of long straight edges (a brick
+wall) offers a box's outline places to lie on: there the edges mislead, the region contrast
+does not (its colours lie on both sides of a wrong outline; docs/chpf-ablations.md).
 """
 
 from __future__ import annotations
@@ -147,6 +151,64 @@ class SilhouetteEdges:
         pts, normals = hull_samples(uv, self.samples)  # (N,S,2) each
         g = sample_bilinear(grad, pts.reshape(-1, 2)).reshape(pts.shape)
         return np.abs(np.sum(g * normals, axis=-1)).mean(axis=1)
+
+
+def colour_codes(rgb: np.ndarray, bins: int) -> np.ndarray:
+    """Colour bin (...) int64 of each pixel of rgb (..., 3) uint8: ``bins`` levels per channel,
+    bins**3 codes."""
+    q = rgb.astype(np.int64) * bins // 256
+    return (q[..., 0] * bins + q[..., 1]) * bins + q[..., 2]
+
+
+class SilhouetteRegion:
+    """How well each pose hypothesis's outline separates the object's colours from the
+    background's: the region contrast 1 - BC(h_in, h_out), BC the Bhattacharyya coefficient of
+    the colour histograms of two bands of points, just inside and just outside the projected
+    outline's hull (offsets along its normals, fractions of the hull's mean radius). At the
+    true pose the inner band is the object and the outer band its surroundings; a hypothesis
+    too near (too large) puts background in both, too far (too small) object in both, so the
+    contrast falls either way. Unlike the edges, a textured background (a brick wall) does
+    not offer the outline places to lie on: its colours are on both sides of a wrong outline.
+
+    points: (M,3) metres, object frame, as SilhouetteEdges'. samples: points along the hull.
+    offsets: the bands' distances from the hull, fractions of its mean radius. bins: colour
+    levels per channel.
+    """
+
+    def __init__(
+        self,
+        points: np.ndarray,
+        samples: int = 64,
+        offsets: tuple[float, ...] = (0.04, 0.1, 0.2),
+        bins: int = 4,
+    ) -> None:
+        self.points = np.asarray(points, dtype=np.float64)
+        self.samples = int(samples)
+        self.offsets = np.asarray(offsets, dtype=np.float64)
+        self.bins = int(bins)
+
+    def alignment(
+        self, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray, z_min: float
+    ) -> np.ndarray:
+        """Region contrast a (N,) in [0, 1] of hypotheses R (N,3,3), t (N,3) metres on rgb
+        (H,W,3) uint8 with intrinsics K (3,3) (the outline's depths clamped to at least z_min
+        metres); points off the image take the nearest border pixel."""
+        h, w = rgb.shape[:2]
+        uv = project_outline(self.points, R, t, np.asarray(K, dtype=np.float64), z_min)
+        pts, normals = hull_samples(uv, self.samples)  # (N,S,2) each
+        radius = np.linalg.norm(pts - pts.mean(axis=1, keepdims=True), axis=-1).mean(axis=1)
+        step = self.offsets[None, :, None, None] * radius[:, None, None, None] * normals[:, None]
+        n, nbins = pts.shape[0], self.bins**3
+        hists = []
+        for sign in (-1.0, 1.0):  # inside, outside
+            xy = np.rint(pts[:, None] + sign * step).astype(np.int64)  # (N,B,S,2)
+            x = np.clip(xy[..., 0], 0, w - 1)
+            y = np.clip(xy[..., 1], 0, h - 1)
+            codes = colour_codes(rgb[y, x], self.bins)  # only the sampled pixels
+            flat = codes.reshape(n, -1) + np.arange(n)[:, None] * nbins
+            counts = np.bincount(flat.ravel(), minlength=n * nbins).reshape(n, nbins)
+            hists.append(counts / counts.sum(axis=1, keepdims=True))
+        return 1.0 - np.sqrt(hists[0] * hists[1]).sum(axis=1)
 
 
 def silhouette_counter_evidence(alignment: np.ndarray, power: float) -> np.ndarray:

@@ -145,6 +145,13 @@ BOX_SHAPES: tuple[str, ...] = typing.get_args(BoxShape)
 0, 1), nothing below a margin m of the ratio rho."""
 
 
+SilhouetteCue = Literal["edges", "region"]
+SILHOUETTE_CUES: tuple[str, ...] = typing.get_args(SilhouetteCue)
+"""What ``c_silhouette`` measures of a hypothesis's projected outline (chpf.tracking.silhouette):
+"edges" how well it meets the image's intensity edges (SilhouetteEdges); "region" how well it
+separates the colours inside it from those around it (SilhouetteRegion)."""
+
+
 @dataclass
 class CHPFConfig(Section):
     """CH-PF: c_mode, where the Counter-Hypothetical likelihood C comes from (C_MODES; depth
@@ -154,7 +161,7 @@ class CHPFConfig(Section):
     and c_box_shape its shape (BOX_SHAPES); c_edge, the margin of the box-edge counter-evidence
     (Scores.C_edge; None = off), which alpha counts and the weights do not;
     c_silhouette, the power p of the silhouette's counter-evidence 1 - (a / max a)^p added to C
-    (chpf.tracking.silhouette; None = off);
+    (chpf.tracking.silhouette; None = off) and silhouette_cue what a measures (SILHOUETTE_CUES);
     c_weight, the exponent k of the importance weights w (1 - C)^k (0 = the paper's: C only
     sets alpha); keep_belief, the round(alpha N) particles drawn from phi_cand join N resampled
     from the belief (N + round(alpha N) weighed at the next frame) instead of replacing
@@ -169,7 +176,8 @@ class CHPFConfig(Section):
     c_box: float | None = setting(0.1, gt=0.0)
     c_box_shape: BoxShape = "gauss"
     c_edge: float | None = setting(0.2, gt=0.0)
-    c_silhouette: float | None = setting(None, gt=0.0)
+    c_silhouette: float | None = setting(1.0, gt=0.0)
+    silhouette_cue: SilhouetteCue = "region"
     c_weight: float = setting(1.0, ge=0.0)
     keep_belief: bool = True
     temper: float = setting(1.0, ge=0.0, le=1.0)

@@ -1,5 +1,5 @@
-"""The silhouette's edges (chpf.tracking.silhouette): hull samples, gradients, the outline's
-calibration and the counter-evidence C_sil."""
+"""The silhouette (chpf.tracking.silhouette): hull samples, gradients, the outline's
+calibration, its edges and region contrast, and the counter-evidence C_sil."""
 
 from __future__ import annotations
 
@@ -13,6 +13,8 @@ from chpf.tracking.demo import shipped_bundle
 from chpf.tracking.model_outline import outline_points
 from chpf.tracking.silhouette import (
     SilhouetteEdges,
+    SilhouetteRegion,
+    colour_codes,
     hull_samples,
     outline_scale,
     sample_bilinear,
@@ -57,6 +59,30 @@ def test_counter_evidence_is_the_share_below_the_best_alignment() -> None:
     assert np.allclose(silhouette_counter_evidence(np.zeros(3), 1.0), 0.0)  # no edge anywhere
 
 
+def test_colour_codes_bin_each_channel() -> None:
+    rgb = np.array([[[0, 0, 0], [255, 255, 255], [64, 128, 0]]], dtype=np.uint8)
+    assert colour_codes(rgb, 4).tolist() == [[0, 63, 1 * 16 + 2 * 4 + 0]]
+
+
+def test_region_contrast_is_highest_where_the_outline_separates_the_colours() -> None:
+    """A red square (half side 25 px at 1 m) on a striped background: at the true depth the
+    inner band is all red and the outer all stripes (contrast 1); 15 % nearer or farther, one
+    band mixes both (contrast below 1), and a pose beside the square sees stripes in both."""
+    K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 50.0], [0.0, 0.0, 1.0]])
+    rgb = np.zeros((100, 200, 3), dtype=np.uint8)
+    rgb[:, ::3] = (0, 0, 255)  # stripes of blue and green, one pixel and two
+    rgb[:, 1::3] = (0, 255, 0)
+    rgb[:, 2::3] = (0, 255, 0)
+    rgb[25:76, 25:76] = (255, 0, 0)
+    corners = np.array([[x, y, 0.0] for x in (-0.25, 0.25) for y in (-0.25, 0.25)])
+    t = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 0.85], [0.0, 0.0, 1.15], [0.9, 0.0, 1.0]])
+    a = SilhouetteRegion(corners).alignment(rgb, K, np.repeat(np.eye(3)[None], 4, 0), t, 0.05)
+    assert a[0] == pytest.approx(1.0)
+    assert np.all(a[1:3] < 0.9)
+    assert a[3] < 0.1
+    assert np.all((a >= 0.0) & (a <= 1.0))
+
+
 @pytest.fixture(scope="module")
 def box_bundle() -> Bundle:
     return Bundle.load(shipped_bundle(), spin=False)
@@ -94,7 +120,28 @@ def test_the_outline_meets_the_edges_best_at_the_true_depth(box_bundle: Bundle) 
     assert raw_far >= 0.5 * total
 
 
-def test_chpf_c_silhouette_doubts_a_pose_off_in_depth(box_bundle: Bundle) -> None:
+def test_the_region_contrast_peaks_at_the_true_depth(box_bundle: Bundle) -> None:
+    """On the demo sequence's unoccluded frames the outline separates the box's colours from
+    the background's best at the true pose, not 5 % nearer or farther."""
+    scene = BopDataset(DEMO_ROOT).scene("test", 1)
+    points = outline_points(box_bundle)
+    region = SilhouetteRegion(points * outline_scale(box_bundle, points))
+    factors = np.array([0.95, 1.0, 1.05])
+    wins = total = 0
+    for im in scene.image_ids()[::3]:
+        i, gt = next((i, g) for i, g in enumerate(scene.gt[im]) if g.obj_id == 2)
+        if scene.gt_info[im][i].visib_fract < 0.9:
+            continue
+        R = np.repeat(np.asarray(gt.R)[None], 3, axis=0)
+        t = np.asarray(gt.t)[None] * factors[:, None]
+        wins += int(np.argmax(region.alignment(scene.rgb(im), DEMO_K, R, t, 0.05)) == 1)
+        total += 1
+    assert total >= 5
+    assert wins >= 0.8 * total
+
+
+@pytest.mark.parametrize("cue", ["region", "edges"])
+def test_chpf_c_silhouette_doubts_a_pose_off_in_depth(box_bundle: Bundle, cue: str) -> None:
     """With ``chpf.c_silhouette`` the poses 8 % nearer and farther than the truth get more
     counter-evidence than the classifier alone gives them, the true pose none more."""
     from chpf.tracking.bundle_likelihood import BundleLikelihood
@@ -106,7 +153,29 @@ def test_chpf_c_silhouette_doubts_a_pose_off_in_depth(box_bundle: Bundle) -> Non
     R = np.repeat(np.asarray(gt.R)[None], 3, axis=0)
     t = np.asarray(gt.t)[None] * np.array([1.0, 0.92, 1.08])[:, None]
     plain = BundleLikelihood(box_bundle, c_mode="learned").score(frame, R, t).C
-    with_sil = BundleLikelihood(box_bundle, c_mode="learned", c_silhouette=1.0)
+    with_sil = BundleLikelihood(box_bundle, c_mode="learned", c_silhouette=1.0, silhouette_cue=cue)
     C = with_sil.score(frame, R, t).C
     assert C[0] == pytest.approx(plain[0])
     assert np.all(C[1:] > plain[1:] + 0.05)
+
+
+def test_the_reference_takes_part_in_the_silhouettes_comparison(box_bundle: Bundle) -> None:
+    """With a reference, the box's single-frame estimate is scored with the hypotheses: a set
+    that is all 15-25 % too far gets C_sil from the estimate's better outline (without the
+    reference its best member would get none), and the estimate's own C_sil joins C_ref."""
+    from chpf.tracking.bundle_likelihood import BundleLikelihood
+    from chpf.tracking.types import Frame
+
+    scene = BopDataset(DEMO_ROOT).scene("test", 1)
+    i, gt = next((i, g) for i, g in enumerate(scene.gt[1]) if g.obj_id == 2)
+    frame = Frame(rgb=scene.rgb(1), depth=None, K=DEMO_K, box=scene.gt_info[1][i].bbox_visib)
+    R = np.repeat(np.asarray(gt.R)[None], 3, axis=0)
+    t = np.asarray(gt.t)[None] * np.array([1.15, 1.2, 1.25])[:, None]
+    kwargs = {"c_mode": "learned", "c_silhouette": 1.0}
+    alone = BundleLikelihood(box_bundle, **kwargs).score(frame, R, t)
+    plain = BundleLikelihood(box_bundle, reference="box").score(frame, R, t)
+    judged = BundleLikelihood(box_bundle, reference="box", **kwargs).score(frame, R, t)
+    best = int(np.argmin(alone.C))
+    assert judged.C[best] > alone.C[best] + 0.2
+    assert judged.reference[0] == pytest.approx(plain.reference[0])
+    assert judged.reference[1] >= plain.reference[1]
