@@ -669,18 +669,19 @@ def test_shipped_bundle_c_calls_an_occluded_but_aligned_crop_aligned(sequence_re
 def test_shipped_bundle_chpf_alpha_rises_after_a_forced_collapse_and_the_estimate_recovers(
     sequence_renderer,
 ):
-    """Default config, seeds 0-2: CH-PF tracks with alpha near 0, every particle is then put on
+    """Default config, seeds 0-2: CH-PF tracks with a low alpha, every particle is then put on
     one wrong pose (90 deg off, 0.3 d aside) at frame 30: alpha rises above 0.8, the
     orientation comes back, the position comes back onto the object's ray and alpha falls
-    again. Measured, seeds 0 / 1 / 2 (alpha against the frame's reference, the default): over
-    frames 20-29 ADD-S 0.09 / 0.25 / 0.07 d at 0.94 / 0.87 / 0.97 x the true depth, alpha
-    about 0.01; alpha 0.93 at the collapse and 0.001-0.004 over frames 50-59; after frame 40
-    median rotation error 3.2 / 2.2 / 3.3 deg and ADD-S 0.05 / 0.10 / 0.10 d. Depth is the
-    weak axis: the box-scale C counts only a hypothesis too far away (a nearer one is what
-    occlusion looks like), and on this clean render the default settles too near before the
-    collapse (with the ramp it replaced, margin 0.2: 0.96 / 1.05 / 0.93 x, ADD-S 0.08 / 0.10 /
-    0.11 d; docs/chpf-ablations.md). So before the collapse the bound is on the ray (the true
-    centre within 0.1 d of the estimated ray) and on the depth (within 20 %), after it the
+    again. Measured, seeds 0 / 1 / 2 (the default, with the silhouette's C): over frames 20-29
+    ADD-S 0.04 / 0.08 / 0.07 d, alpha 0.15 / 0.18 / 0.17; alpha 0.95 / 0.91 / 0.92 at the
+    collapse and 0.20 / 0.22 / 0.25 over frames 50-59; after frame 40 median rotation error
+    1.8 / 3.0 / 2.6 deg and ADD-S 0.01 / 0.05 / 0.07 d. (Before the silhouette: alpha about
+    0.01 while tracking, ADD-S 0.05 / 0.10 / 0.10 d after frame 40.) On this clean render the
+    outline's contrast at the true pose is 0.84-1.0 while the set's particles, spread over 5-7 %
+    in depth by the motion model, reach 0.4-0.6: the set fits the frame worse than the box's
+    own estimate, and alpha says so (the bench's tracked frames: 0.11). So the bounds are the
+    issue's 0.25 while tracking and 0.3 once settled again; before the collapse the ray (the
+    true centre within 0.1 d of the estimated ray) and the depth (within 20 %), after it the
     ray's ADD-S bound per seed (0.25 d) and 0.12 d for the median over the seeds."""
     bundle = _shipped_bundle()
     d = bundle.obj_info.diameter
@@ -696,11 +697,11 @@ def test_shipped_bundle_chpf_alpha_rises_after_a_forced_collapse_and_the_estimat
         off_ray = np.linalg.norm(np.cross(seq.t[20:30], ray), axis=1) / d
         depth = t_est[:, 2] / seq.t[20:30, 2]
         assert np.median(off_ray) < 0.1 and 0.8 < np.median(depth) < 1.2, seed  # tracking
-        assert alphas[20:30].mean() < 0.1
+        assert alphas[20:30].mean() < 0.25
         assert rot_err[30] > 45.0 and alphas[30] > 0.8  # collapsed: doubt, reinvigoration
         # recovered: the orientation is back (the collapse turned it 90 deg), the position too
         assert np.median(rot_err[40:]) < 10.0 and np.median(adds_errs[40:]) < 0.25, seed
-        assert alphas[50:].mean() < 0.1  # settled again
+        assert alphas[50:].mean() < 0.3  # settled again
         recovered.append(np.median(adds_errs[40:]))
     assert np.median(recovered) < 0.12, recovered
 
