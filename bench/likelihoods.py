@@ -7,6 +7,9 @@ occluders and backgrounds that training never drew (C < 0.5 counts as "aligned")
 scores NEAR poses per instance, each turned by up to NEAR_DEG about a random axis and moved by
 up to NEAR_SHIFT diameters (so within 0.1 diameters of the truth by ADD): the C a tracked
 particle has, whose rise with occlusion is what drives a CH-PF's alpha up under occlusion.
+C is the classifier's with the default config's box scale, without the silhouette's
+(``chpf.c_silhouette``): that one measures a pose against the others scored with it, here the
+truth against its own near poses.
 """
 
 from __future__ import annotations
@@ -62,7 +65,11 @@ def truth_scores(seqs: list[Sequence]) -> dict[str, np.ndarray]:
     for seq in seqs:
         if seq.bundle not in likelihoods:
             bundle = Bundle.load(seq.bundle)
-            likelihoods[seq.bundle] = Tracker.from_bundle(bundle).likelihood
+            # the classifier's C (with the box scale), not the silhouette's, which ranks a pose
+            # among those scored with it (here the truth and its near poses)
+            likelihoods[seq.bundle] = Tracker.from_bundle(
+                bundle, chpf={"c_silhouette": None}
+            ).likelihood
             diameters[seq.bundle] = bundle.obj_info.diameter
         scene = BopDataset(seq.root).scene("test", seq.scene_id)
         for im in scene.image_ids():
