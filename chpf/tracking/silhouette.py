@@ -213,7 +213,7 @@ class SilhouetteRegion:
 
 def silhouette_counter_evidence(alignment: np.ndarray, power: float) -> np.ndarray:
     """C_sil (N,) in [0, 1] of alignments (N,) >= 0: 1 - (a / max a)^power; 0 for every
-    hypothesis when no outline meets an edge."""
+    hypothesis when no outline fits at all (every a is 0)."""
     top = float(np.max(alignment)) if alignment.size else 0.0
     if top <= 0.0:
         return np.zeros_like(alignment, dtype=np.float64)
