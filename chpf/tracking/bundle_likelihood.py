@@ -25,6 +25,8 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
    projected at the particle's pose), is impossible up to the detector's size noise (the box
    shows at most the whole object; a larger hypothesis is explained by occlusion): C_box =
    ``box_counter_evidence(rho, c_box, c_box_shape)``, and C becomes 1 - (1 - C)(1 - C_box).
+   On a frame without a detection, a search region's box fitted to the image (``Region.fitted``,
+   chpf.tracking.search_region) measures the size instead (``Frame.scale_box``).
    Neither network sees a wrong depth well (the crops are scale-normalised): at the true pose
    of the development suite's unoccluded frames the mean L is 0.747 at the true depth, 0.742
    at 1.03 x and 0.708 at 1.1 x it, C 0.021, 0.024, 0.040.
@@ -356,12 +358,23 @@ class BundleLikelihood:
         if est is not None:
             R = np.concatenate([R, est[0][None]])
             t = np.concatenate([t, est[1][None]])
+        a = self.outline_contrast(frame, R, t)
+        assert a is not None
+        C_sil = np.where(
+            t[:, 2] >= self.z_min, silhouette_counter_evidence(a, self.c_silhouette), 1.0
+        )
+        return (C_sil[:-1], float(C_sil[-1])) if est is not None else (C_sil, None)
+
+    def outline_contrast(self, frame: Frame, R: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+        """The silhouette's alignment a (N,) of poses R (N,3,3), t (N,3) metres on the frame
+        (item 9's, with its cue; 0 behind the camera); None when the silhouette is off."""
+        if self.silhouette is None:
+            return None
         ok = t[:, 2] >= self.z_min
         a = np.zeros(t.shape[0])
         if ok.any():
             a[ok] = self.silhouette.alignment(frame.rgb, frame.K, R[ok], t[ok], self.z_min)
-        C_sil = np.where(ok, silhouette_counter_evidence(a, self.c_silhouette), 1.0)
-        return (C_sil[:-1], float(C_sil[-1])) if est is not None else (C_sil, None)
+        return a
 
     @property
     def outline(self) -> np.ndarray:
@@ -380,18 +393,20 @@ class BundleLikelihood:
     def _box_evidence(
         self, frame: Frame, R: np.ndarray, t: np.ndarray
     ) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """C_box and C_edge (N,) of poses R (N,3,3), t (N,3) against the detection box (module
-        docstring, item 6); each None when off or without a box."""
-        box = valid_box(frame.box)
-        if box is None or (self.c_box is None and self.c_edge is None):
+        """C_box and C_edge (N,) of poses R (N,3,3), t (N,3) (module docstring, item 6): C_box
+        against the box that measures the object's size (the detection, else a fitted search
+        region's: ``Frame.scale_box``), C_edge against the detection; each None when off or
+        without its box."""
+        box, sized = valid_box(frame.box), valid_box(frame.scale_box())
+        c_box = c_edge = None
+        if sized is None or (self.c_box is None and (box is None or self.c_edge is None)):
             return None, None
         proj = self._projected_boxes(R, t, np.asarray(frame.K))
         side = np.maximum(np.maximum(proj[:, 2] - proj[:, 0], proj[:, 3] - proj[:, 1]), 1e-6)
-        c_box = c_edge = None
         if self.c_box is not None:
-            rho = max(box[2], box[3]) / side
+            rho = max(sized[2], sized[3]) / side
             c_box = box_counter_evidence(rho, self.c_box, self.c_box_shape)
-        if self.c_edge is not None:
+        if box is not None and self.c_edge is not None:
             x, y, w, h = box
             edges_out = np.stack(
                 [proj[:, 0] - x, proj[:, 1] - y, x + w - proj[:, 2], y + h - proj[:, 3]], axis=1

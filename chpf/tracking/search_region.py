@@ -22,7 +22,17 @@ doubtful frame, until the window (the area times the scale, clipped) covers the 
 every frame that is not doubtful divides it by ``widen`` again, down to 1. Predict-only frames
 change nothing. Without probes (``probes: 0``) phi_cand draws its candidates' centres in the
 whole window and, once widened, its orientations uniformly (no look-up crop: the estimate's
-place is in doubt). With ``probes`` > 0:
+place is in doubt).
+
+A region that is not widened is *fitted* when a ``fitter`` (CH-PF's likelihood, with its
+silhouette cue: chpf.tracking.silhouette) and ``fit_depths`` are given: the estimate is moved
+along its ray to the factor of ``fit_depths`` (0.9-1.1 times its depth) at which its outline's
+colour contrast is highest, and the box is that pose's projected box, marked ``Region.fitted``.
+phi_cand reads it as it reads any region's box, and CH-PF's box-scale C reads it as it reads a
+detection's: without a detector nothing else measures the object's size, and the belief crept
+farther away (median +2.6 % on the dev suite's unoccluded frames; 0 % fitted).
+
+With ``probes`` > 0:
 
 - a widened frame is scanned over the whole image with square probe boxes
   (``SearchRegion.probe``): a grid (shifted at random each frame) whose sides lie within
@@ -68,11 +78,11 @@ import math
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
 
-from chpf.config_schema import Section, setting
+from chpf.config_schema import Invalid, Section, setting
 from chpf.geometry import project_points
 from chpf.tracking.probe_scores import Probed, ProbeScoreName, probe_scores
 from chpf.tracking.types import Box, Frame, Region, TrackResult
@@ -89,6 +99,13 @@ DECOY_AWAY = 1.5
 estimate (nearer, the scores see the object's own shoulders)."""
 
 
+class Outlined(Protocol):
+    """What fitting a region's box needs from a likelihood (BundleLikelihood has it)."""
+
+    def outline_contrast(self, frame: Frame, R: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+        """Outline contrast (N,) of poses R (N,3,3), t (N,3) metres; None without a cue."""
+
+
 @dataclass
 class SearchConfig(Section):
     """The search region of frames without a detection (chpf.tracking.search_region):
@@ -102,7 +119,9 @@ class SearchConfig(Section):
     probe is scored (chpf.tracking.probe_scores.PROBE_SCORES); probe_margin, how much a probe
     must score above the estimate's own box and above what was remembered at its place to take
     over (``SearchRegion.probe``); calm_probes, the probes scored per calm frame to remember
-    the places elsewhere that look like the object (decoys; 0: none remembered)."""
+    the places elsewhere that look like the object (decoys; 0: none remembered); fit_depths,
+    the factors of the estimate's depth among which a calm region's box is fitted to the
+    outline's colour contrast (``SearchRegion.fitted``; empty: not fitted)."""
 
     box_source: BoxSourceName = "auto"
     margin: float = setting(0.2, ge=0.0)
@@ -115,6 +134,11 @@ class SearchConfig(Section):
     probe_score: ProbeScoreName = "odds"
     probe_margin: float = setting(0.5, ge=0.0)
     calm_probes: int = setting(16, ge=0)
+    fit_depths: tuple[float, ...] = (0.9, 0.95, 1.0, 1.05, 1.1)
+
+    def check(self) -> None:
+        if any(not f > 0 for f in self.fit_depths):
+            raise Invalid("fit_depths", f"must be > 0, got {list(self.fit_depths)}")
 
 
 def projected_box(points: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> Box | None:
@@ -195,7 +219,8 @@ class SearchRegion:
     config: the ``search`` section; points: (M,3) metres, object frame, the model points whose
     projection bounds the object (a callable giving them: computed on first use); prober: what
     scores the probes of a widened window (None: no probes, phi_cand draws in the whole
-    window). State: ``scale`` (>= 1), ``streak`` (doubtful weighed frames in a row).
+    window); fitter: what fits a calm region's box to the image (None: not fitted). State:
+    ``scale`` (>= 1), ``streak`` (doubtful weighed frames in a row).
     """
 
     def __init__(
@@ -203,10 +228,12 @@ class SearchRegion:
         config: SearchConfig,
         points: np.ndarray | Callable[[], np.ndarray],
         prober: Probed | None = None,
+        fitter: Outlined | None = None,
     ) -> None:
         self.config = config
         self._points = points
         self.prober = prober
+        self.fitter = fitter
         self.reset()
 
     def reset(self) -> None:
@@ -397,6 +424,25 @@ class SearchRegion:
         mean_l = result.sum_L / n_particles if math.isfinite(result.sum_L) else 0.0
         return bool(mean_l < self.config.l_doubt)
 
+    def fitted(
+        self, frame: Frame, region: Region | None, estimate: tuple[np.ndarray, np.ndarray]
+    ) -> Region | None:
+        """``region`` with its box fitted to the frame (module docstring): the estimate R (3,3),
+        t (3,) metres moved along its ray to the factor of ``fit_depths`` whose outline's
+        colour contrast is highest, its projected box marked ``fitted``. As it is when the
+        region is widened, nothing fits (no silhouette, no factors) or the fitted pose does
+        not project."""
+        factors = np.asarray(self.config.fit_depths, dtype=np.float64)
+        if region is None or region.scale > 1.0 or self.fitter is None or factors.size == 0:
+            return region
+        R, t = estimate
+        ts = factors[:, None] * np.asarray(t, dtype=np.float64)[None]
+        a = self.fitter.outline_contrast(frame, np.repeat(R[None], factors.size, axis=0), ts)
+        if a is None:
+            return region
+        box = projected_box(self.points, R, ts[int(np.argmax(a))], frame.K)
+        return region if box is None else replace(region, box=box, fitted=True)
+
     def update(self, result: TrackResult, n_particles: int) -> None:
         """Widen or shrink after a frame (module docstring; a frame whose probes found a better
         place elsewhere counts as doubtful); N = ``n_particles``."""
@@ -435,6 +481,7 @@ class SearchRegion:
             region = self.probe(frame, region, estimate[1], rng)
         else:
             self._z = max(float(estimate[1][2]), 1e-3)
+            region = self.fitted(frame, region, estimate)
             if region is not None and probing:
                 self.remember(frame, estimate[1], rng)
             else:

@@ -161,7 +161,9 @@ class Tracker:
             method, self.likelihood, cfg, self.candidates, np.random.default_rng(self.seed)
         )
         self.boxes = BoxChecker("Tracker.step")  # warns once per tracker
-        self.search = SearchRegion(cfg.search, lambda: self.likelihood.outline, self.likelihood)
+        self.search = SearchRegion(
+            cfg.search, lambda: self.likelihood.outline, self.likelihood, self.likelihood
+        )
         self.frame = 0  # frames stepped since the last reset
 
     @classmethod

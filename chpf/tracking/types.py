@@ -27,6 +27,9 @@ class Region:
     over: phi_cand draws around the estimate). cue: the box's crop may inform phi_cand's
     orientations and E2E's single-frame estimate (False in a widened window without probes).
     probed: the box is a probe that took over (the Rao-Blackwellised filters then draw there).
+    fitted: the box was fitted to the image (the estimate moved along its ray to where its
+    outline's colour contrast peaks: chpf.tracking.search_region), a measurement of the
+    object's size that CH-PF's box scale reads as it reads a detection's (``Frame.scale_box``).
     """
 
     box: Box
@@ -35,6 +38,7 @@ class Region:
     scale: float = 1.0
     cue: bool = True
     probed: bool = False
+    fitted: bool = False
 
 
 @dataclass
@@ -56,6 +60,14 @@ class Frame:
         if self.box is not None:
             return self.box
         return self.region.box if self.region is not None and self.region.cue else None
+
+    def scale_box(self) -> Box | None:
+        """The box that measures the object's size in the image (CH-PF's box scale,
+        chpf.tracking.bundle_likelihood, item 6): the detection, else a fitted search region's
+        box (``Region.fitted``); not checked."""
+        if self.box is not None:
+            return self.box
+        return self.region.box if self.region is not None and self.region.fitted else None
 
 
 Reference = tuple[float, float]

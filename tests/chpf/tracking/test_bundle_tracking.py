@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,7 @@ from chpf.tracking.bundle_likelihood import (
 from chpf.tracking.codebook_candidates import CodebookRotations
 from chpf.tracking.depth_scores import depth_scores
 from chpf.tracking.tracker import Tracker
-from chpf.tracking.types import Frame
+from chpf.tracking.types import Frame, Region
 
 PAPER = Path(__file__).resolve().parents[3] / "configs" / "track_paper.yaml"
 """The paper's setting: blind phi_cand, sums over every particle (the default is informed)."""
@@ -106,6 +107,23 @@ def test_c_box_counts_a_hypothesis_smaller_than_the_detection_box_as_misaligned(
         BundleLikelihood(bundle, c_box=0.2).score(no_box, R, t).C,
         BundleLikelihood(bundle).score(no_box, R, t).C,
     )
+
+
+def test_c_box_reads_a_fitted_search_regions_box_as_a_detections(bundle, rendered_sequence):
+    """Without a detection, a search region whose box was fitted to the image measures the
+    object's size as a detection does: the pose 1.5 x too far gets C_box; an unfitted region's
+    box (the estimate's own projection) measures nothing."""
+    seq = rendered_sequence
+    R, t = np.repeat(seq.R[:1], 2, 0), seq.t[0][None] * np.array([1.0, 1.5])[:, None]
+    region = Region(seq.box(0), seq.box(0), seq.box(0))
+    boxed = BundleLikelihood(bundle, c_box=0.2, c_box_shape="ramp")
+    C = {
+        name: boxed.score(Frame(seq.rgb[0], None, seq.K, None, r), R, t).C
+        for name, r in (("fitted", replace(region, fitted=True)), ("plain", region))
+    }
+    detected = boxed.score(Frame(seq.rgb[0], None, seq.K, seq.box(0)), R, t).C
+    np.testing.assert_allclose(C["fitted"], detected)
+    assert C["fitted"][1] == pytest.approx(1.0) and C["plain"][1] < 0.9
 
 
 def test_c_box_does_not_count_the_true_pose(bundle, rendered_sequence):

@@ -160,6 +160,44 @@ def test_auto_searches_only_while_no_detector_runs():
     assert search.frame(Frame(rgb, None, K, None), est, rng).region is not None
 
 
+class DepthPeak:
+    """A fitter whose outline contrast peaks at depth ``z`` metres (1 there, falling with
+    |ln(z_hypothesis / z)|)."""
+
+    def __init__(self, z):
+        self.z = z
+
+    def outline_contrast(self, frame, R, t):
+        return 1.0 - np.abs(np.log(t[:, 2] / self.z))
+
+
+def test_a_calm_region_takes_the_box_of_the_depth_whose_outline_fits_best():
+    """The estimate at z 1.0 and an outline that fits best at 0.95: the region's box is the
+    model's projected box at the factor 0.95 of fit_depths, marked fitted (a measurement that
+    CH-PF's box scale reads); its window stays the estimate's. Not fitted: without a fitter,
+    with no factors, or once widened."""
+    rgb = np.zeros((H, W, 3), np.uint8)
+    R, t = np.eye(3), np.array([0.0, 0.0, 1.0])
+    rng = np.random.default_rng(0)
+
+    def region(cfg=None, fitter=DepthPeak(0.95)):  # noqa: B008
+        search = SearchRegion(cfg or SearchConfig(box_source="estimate"), CUBE, None, fitter)
+        return search, search.frame(Frame(rgb, None, K, None), (R, t), rng).region
+
+    search, fitted = region()
+    plain = search.region(R, t, K, W, H)
+    assert fitted.fitted and not plain.fitted
+    np.testing.assert_allclose(fitted.box, projected_box(CUBE, R, 0.95 * t, K))
+    assert fitted.window == plain.window and fitted.area == plain.area
+    assert not region(fitter=None)[1].fitted
+    assert not region(SearchConfig(box_source="estimate", fit_depths=()))[1].fitted
+    search, _ = region(SearchConfig(box_source="estimate", patience=1, widen=2.0))
+    search.update(DOUBT, 50)
+    assert not search.frame(Frame(rgb, None, K, None), (R, t), rng).region.fitted
+    with pytest.raises(ConfigError, match="fit_depths"):
+        make_config(None, ["search.fit_depths=[0.0, 1.0]"])
+
+
 class PeakProber:
     """A likelihood whose probe score (the cosine kind) peaks at boxes centred on ``centre``
     with side ``side`` pixels: 1 at the peak, falling by one per ``width`` of the side off
