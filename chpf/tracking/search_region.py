@@ -30,7 +30,7 @@ along its ray to the factor of ``fit_depths`` (0.9-1.1 times its depth) at which
 colour contrast is highest, and the box is that pose's projected box, marked ``Region.fitted``.
 phi_cand reads it as it reads any region's box, and CH-PF's box-scale C reads it as it reads a
 detection's: without a detector nothing else measures the object's size, and the belief crept
-farther away (median +2.6 % on the dev suite's unoccluded frames; 0 % fitted).
+farther away (median +2.6 % on the dev suite's unoccluded frames; -0.2 % fitted).
 
 With ``probes`` > 0:
 
