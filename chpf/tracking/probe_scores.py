@@ -28,6 +28,7 @@ from typing import Literal, Protocol
 
 import numpy as np
 
+from chpf.geometry import RotationGrid, allocentric_to_egocentric
 from chpf.tracking.candidates import box_translations
 from chpf.tracking.types import CodebookScores, Frame
 
@@ -41,6 +42,9 @@ class Probed(Protocol):
 
     @property
     def box_extent(self) -> float: ...
+
+    @property
+    def grid(self) -> RotationGrid: ...
 
     def codebook_scores(self, frame: Frame, t: np.ndarray) -> CodebookScores: ...
 
@@ -59,6 +63,21 @@ def probe_evidence(
     if not with_c or scores.misaligned is None:
         return cos, None
     return cos, np.asarray(scores.misaligned(np.argmax(scores.cos, axis=1)), dtype=np.float64)
+
+
+def probe_poses(
+    likelihood: Probed, frame: Frame, boxes: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The object's poses in probe boxes (M,4) (x, y, w, h) pixels: the ``k`` codebook
+    orientations R (M,k,3,3) whose cosines with each crop are highest, seen at the box's
+    translation t (M,3) metres."""
+    frame = replace(frame, box=None, region=None)
+    t = box_translations(boxes, frame.K, likelihood.box_extent)
+    top = np.argsort(-likelihood.codebook_scores(frame, t).cos, axis=1)[:, :k]
+    R = allocentric_to_egocentric(
+        likelihood.grid.rotations[top.ravel()], np.repeat(t, top.shape[1], axis=0)
+    )
+    return R.reshape(len(boxes), -1, 3, 3), t
 
 
 def probe_scores(

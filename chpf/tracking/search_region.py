@@ -48,20 +48,33 @@ With ``probes`` > 0:
   patch of background). Under occlusion the object is hidden and such a place outscores the
   estimate's box; after a jump the object appears where nothing scored as well before;
 - a probe's *gain* is its score less the best of the estimate's own box (and a few jittered
-  copies of it) and of the decoys around it. The probe with the highest gain takes over when
-  that gain exceeds ``probe_margin``: it becomes the region's box, so phi_cand draws around it,
-  at its depth, with orientations that match its crop, and the frame counts as doubtful
-  whatever its alpha (``elsewhere``: the window stays open while the filter has not moved
-  there). Otherwise phi_cand draws around the estimate as on a calm frame (``Region.scale``
-  1; the window is still recorded as searched). A calm frame whose own scan finds such a
-  gain counts as doubtful too (CH-PF can settle on a wrong place with a low alpha), so the
-  window widens after ``patience`` frames.
+  copies of it) and of the decoys around it;
+- *the outline check* (``probe_outline``): both networks score a refined probe on textured
+  background or a distractor about as well as the object (in a heavily occluded dev scene a
+  patch of floor scored 1.4 decades while the object was hidden, about 2 more than the same
+  box in the last calm frame, whose texture had moved by a few pixels). A whole object also
+  shows its outline: a probe's gain stands only when its outline contrast
+  (chpf.tracking.silhouette; the best over its 3 best codebook orientations at 0.9, 1 and 1.1
+  times its depth) reaches
+  ``probe_outline`` times the median best contrast of the last 20 fitted frames (the object
+  as it looked while tracked), else it is lowered to the margin. A method without a silhouette
+  (PoseRBPF, CH-RBPF: no fitted frame) has no such yardstick and does not probe while the
+  check is on (``probe_outline: 0`` probes without it).
+
+The probe with the highest gain takes over when that gain exceeds ``probe_margin``: it becomes
+the region's box, so phi_cand draws around it, at its depth, with orientations that match its
+crop, and the frame counts as doubtful whatever its alpha (``elsewhere``: the window stays open
+while the filter has not moved there). Otherwise phi_cand draws around the estimate as on a
+calm frame (``Region.scale`` 1; the window is still recorded as searched). A calm frame whose
+own scan finds such a gain counts as doubtful too (CH-PF can settle on a wrong place with a low
+alpha), so the window widens after ``patience`` frames.
 
 The Rao-Blackwellised filters (PoseRBPF, CH-RBPF) draw at least ``poserbpf.search_fraction``
 of their particles from phi_cand where a probe took over (``Region.probed``,
-chpf.tracking.rbpf); without probes PoseRBPF draws only on its threshold reset. Probes are off
-by default: on the dev suite they cost both filters AUC under heavy occlusion
-(docs/own-recording.md).
+chpf.tracking.rbpf); without probes PoseRBPF draws only on its threshold reset. Unchecked
+probes cost both filters AUC under heavy occlusion on the dev suite; checked, CH-PF's cost is
+within the seeds' spread and it re-acquires a jumped object in 24 of 36 runs (1 of 12 without
+probes; docs/own-recording.md), so CH-PF probes by default and the others do not.
 
 ``box_source`` (the ``search`` section of the tracking config) picks the box of each frame:
 ``auto`` the detection when the frame has one, else the search region unless a detector is
@@ -84,7 +97,7 @@ import numpy as np
 
 from chpf.config_schema import Invalid, Section, setting
 from chpf.geometry import project_points
-from chpf.tracking.probe_scores import Probed, ProbeScoreName, probe_scores
+from chpf.tracking.probe_scores import Probed, ProbeScoreName, probe_poses, probe_scores
 from chpf.tracking.types import Box, Frame, Region, TrackResult
 
 BoxSourceName = Literal["auto", "detections", "estimate"]
@@ -94,6 +107,14 @@ JITTER = 0.15
 """Probe refinement: centre offsets and size changes of a jittered box (``jittered``)."""
 OWN_JITTER = 4
 """Jittered copies of the estimate's box scored with it (``SearchRegion._own_boxes``)."""
+OUTLINE_CHECKS = 3
+"""The most probes per pass whose outline is checked (``SearchRegion.outlined``)."""
+OUTLINE_ENTRIES = 3
+"""Codebook orientations (the best cosines) at which a probe's outline is scored."""
+OUTLINE_DEPTHS = (0.9, 1.0, 1.1)
+"""Factors of a probe's depth at which its outline is scored."""
+CALM_OUTLINES = 20
+"""Fitted frames whose best outline contrast make the yardstick of ``probe_outline``."""
 DECOY_AWAY = 1.5
 """A decoy (``SearchRegion.remember``) lies more than this many object sides from the
 estimate (nearer, the scores see the object's own shoulders)."""
@@ -119,7 +140,9 @@ class SearchConfig(Section):
     probe is scored (chpf.tracking.probe_scores.PROBE_SCORES); probe_margin, how much a probe
     must score above the estimate's own box and above what was remembered at its place to take
     over (``SearchRegion.probe``); calm_probes, the probes scored per calm frame to remember
-    the places elsewhere that look like the object (decoys; 0: none remembered); fit_depths,
+    the places elsewhere that look like the object (decoys; 0: none remembered); probe_outline,
+    the share of the tracked object's outline contrast a probe's must reach to take over
+    (``SearchRegion.outlined``; 0: not checked, and every method probes); fit_depths,
     the factors of the estimate's depth among which a calm region's box is fitted to the
     outline's colour contrast (``SearchRegion.fitted``; empty: not fitted)."""
 
@@ -129,11 +152,12 @@ class SearchConfig(Section):
     patience: int = setting(3, ge=1)
     alpha_doubt: float = setting(0.6, ge=0.0, le=1.0)
     l_doubt: float = setting(0.55, ge=0.0, le=1.0)
-    probes: int = setting(0, ge=0)
+    probes: int = setting(64, ge=0)
     probe_sizes: float = setting(1.2, ge=1.0)
     probe_score: ProbeScoreName = "odds"
     probe_margin: float = setting(0.5, ge=0.0)
     calm_probes: int = setting(16, ge=0)
+    probe_outline: float = setting(0.7, ge=0.0, le=1.0)
     fit_depths: tuple[float, ...] = (0.9, 0.95, 1.0, 1.05, 1.1)
 
     def check(self) -> None:
@@ -248,6 +272,7 @@ class SearchRegion:
         self.elsewhere = False  # the last probes found a better place than the estimate's
         self.decoys = np.zeros((0, 4))  # boxes (M,4) elsewhere that looked like the object ...
         self.decoy_scores = np.zeros(0)  # ... and their scores (M,) at the last calm frame
+        self.calm_outlines: list[float] = []  # the best contrast of the last fitted frames
 
     @property
     def points(self) -> np.ndarray:
@@ -323,14 +348,15 @@ class SearchRegion:
             self.prober, frame, np.concatenate([own, boxes]), self.config.probe_score
         )
         own_score, scores = float(both[: len(own)].max()), both[len(own) :]
-        return scores, own_score, self.gains(boxes, scores, own_box, own_score)
+        return scores, own_score, self.gains(frame, boxes, scores, own_box, own_score)
 
-    def gains(self, boxes: np.ndarray, scores: np.ndarray, own_box: np.ndarray,
+    def gains(self, frame: Frame, boxes: np.ndarray, scores: np.ndarray, own_box: np.ndarray,
               own_score: float) -> np.ndarray:  # fmt: skip
         """How much each probe (M,4) with ``scores`` (M,) beats what is known at its place: its
         score less the estimate's own box's ``own_score`` and less the remembered score of
         any decoy whose centre lies within half its side of the probe's; -inf for a probe
-        within half a side of the estimate's box (not elsewhere)."""
+        within half a side of the estimate's box (not elsewhere); at most ``probe_margin`` for
+        a probe whose outline does not look like the object's (``outlined``)."""
         centres = boxes[:, :2] + boxes[:, 2:] / 2
         own_c, own_side = own_box[0, :2] + own_box[0, 2:] / 2, float(own_box[0, 2])
         bar = np.full(len(boxes), float(own_score))
@@ -338,7 +364,44 @@ class SearchRegion:
             near = np.hypot(*(centres - (d[:2] + d[2:] / 2)).T) < 0.5 * d[2]
             bar = np.where(near, np.maximum(bar, d_score), bar)
         gain = np.asarray(scores, dtype=np.float64) - bar
-        return np.where(np.hypot(*(centres - own_c).T) > 0.5 * own_side, gain, -np.inf)
+        gain = np.where(np.hypot(*(centres - own_c).T) > 0.5 * own_side, gain, -np.inf)
+        return self.outlined(frame, boxes, gain)
+
+    @property
+    def verifies(self) -> bool:
+        """Whether a probe's outline is checked (``probe_outline`` > 0): then a method
+        without a silhouette (no ``calm_outlines`` after a fitted frame) does not probe."""
+        return self.config.probe_outline > 0.0
+
+    def outlined(self, frame: Frame, boxes: np.ndarray, gain: np.ndarray) -> np.ndarray:
+        """``gain`` (M,) of probes (M,4) with each of the ``OUTLINE_CHECKS`` highest above
+        ``probe_margin`` kept only when its ``outline_contrast`` reaches ``probe_outline``
+        times the median best contrast of the last fitted frames (the object as it looked
+        while tracked), else lowered to the margin; the others above the margin are lowered
+        to it. Both networks score a refined probe on textured background or a distractor
+        about as well as the object; the outline tells a whole object from them."""
+        over = np.flatnonzero(gain > self.config.probe_margin)
+        if not self.verifies or over.size == 0 or not self.calm_outlines:
+            return gain
+        order = over[np.argsort(-gain[over])]
+        bar = self.config.probe_outline * float(np.median(self.calm_outlines))
+        gain = gain.copy()
+        for k, i in enumerate(order):
+            if k >= OUTLINE_CHECKS or self.outline_contrast(frame, boxes[i]) < bar:
+                gain[i] = self.config.probe_margin
+        return gain
+
+    def outline_contrast(self, frame: Frame, box: np.ndarray) -> float:
+        """The best outline contrast (chpf.tracking.silhouette) of the object in the probe
+        ``box`` (4,) pixels: at the ``OUTLINE_ENTRIES`` codebook orientations that best match
+        its crop, at ``OUTLINE_DEPTHS`` times its depth."""
+        assert self.prober is not None and self.fitter is not None
+        R, t = probe_poses(self.prober, frame, box[None], OUTLINE_ENTRIES)
+        factors = np.repeat(np.asarray(OUTLINE_DEPTHS), R.shape[1])  # depth-major
+        ts = factors[:, None] * t
+        Rs = np.tile(R[0], (len(OUTLINE_DEPTHS), 1, 1))
+        a = self.fitter.outline_contrast(frame, Rs, ts)
+        return 0.0 if a is None else float(np.max(a))
 
     def remember(self, frame: Frame, t: np.ndarray, rng: np.random.Generator) -> None:
         """A calm frame's scan: ``calm_probes`` boxes over the whole image at the estimate's
@@ -403,7 +466,8 @@ class SearchRegion:
         fine = inside(jittered(best[None], max(n // 2, 1), rng), width, height)
         fine_scores = probe_scores(self.prober, frame, fine, kind)
         boxes = np.concatenate([coarse, fine])
-        gain = np.concatenate([coarse_gains, self.gains(fine, fine_scores, own_box, own_score)])
+        fine_gains = self.gains(frame, fine, fine_scores, own_box, own_score)
+        gain = np.concatenate([coarse_gains, fine_gains])
         order = np.argsort(-gain)
         self._kept = boxes[order[: max(n // 8, 1)]]
         self.elsewhere = bool(gain[order[0]] > self.config.probe_margin)
@@ -440,6 +504,7 @@ class SearchRegion:
         a = self.fitter.outline_contrast(frame, np.repeat(R[None], factors.size, axis=0), ts)
         if a is None:
             return region
+        self.calm_outlines = [*self.calm_outlines, float(np.max(a))][-CALM_OUTLINES:]
         box = projected_box(self.points, R, ts[int(np.argmax(a))], frame.K)
         return region if box is None else replace(region, box=box, fitted=True)
 
@@ -477,6 +542,7 @@ class SearchRegion:
         height, width = frame.rgb.shape[:2]
         region = self.region(estimate[0], estimate[1], frame.K, width, height)
         probing = self.prober is not None and self.config.probes > 0
+        probing &= not self.verifies or bool(self.calm_outlines)
         if region is not None and region.scale > 1.0 and probing:
             region = self.probe(frame, region, estimate[1], rng)
         else:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from chpf.errors import ConfigError
+from chpf.geometry import RotationGrid
 from chpf.track_cli import main
 from chpf.tracking.candidates import CandidateSampler
 from chpf.tracking.config import make_config
@@ -226,7 +227,13 @@ def _widened(search, frame, est, rng):
 def test_a_widened_window_is_probed_and_its_best_box_becomes_phi_cands():
     prober = PeakProber((250.0, 60.0), 40.0)  # the object: far from the estimate
     cfg = SearchConfig(
-        patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0, calm_probes=0
+        patience=1,
+        widen=2.0,
+        probes=64,
+        probe_score="cosine",
+        probe_outline=0.0,
+        probe_sizes=2.0,
+        calm_probes=0,
     )
     search = SearchRegion(cfg, CUBE, prober)
     est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # a 32 px box around (130, 135)
@@ -254,7 +261,13 @@ def test_the_best_probes_carry_over_widened_frames_so_a_narrow_peak_is_found():
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))
     cfg = SearchConfig(
-        patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0, calm_probes=0
+        patience=1,
+        widen=2.0,
+        probes=64,
+        probe_score="cosine",
+        probe_outline=0.0,
+        probe_sizes=2.0,
+        calm_probes=0,
     )
     found = []
     for seed in range(5):
@@ -273,7 +286,9 @@ def test_the_best_probes_carry_over_widened_frames_so_a_narrow_peak_is_found():
 def test_the_window_stays_widened_while_a_probe_elsewhere_beats_the_estimates_box():
     # a calm alpha on a wrong place (CH-PF settles on background) does not shrink the window
     # while the probes find something better elsewhere; on the object it shrinks again
-    cfg = SearchConfig(patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0)
+    cfg = SearchConfig(
+        patience=1, widen=2.0, probes=64, probe_score="cosine", probe_outline=0.0, probe_sizes=2.0
+    )
     search = SearchRegion(cfg, CUBE, PeakProber((250.0, 60.0), 40.0))
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     rng = np.random.default_rng(0)
@@ -296,6 +311,7 @@ class Peaks:
     of log size (the real scores' peaks are narrower still: about 0.1 side)."""
 
     box_extent = 0.1
+    grid = RotationGrid(np.eye(3)[None])
 
     def __init__(self, peaks, floor=0.5):
         self.peaks, self.floor, self.calls = peaks, floor, 0
@@ -319,7 +335,7 @@ def test_a_place_that_looked_like_the_object_while_it_was_tracked_does_not_take_
     est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # a 30 px box around (130, 135)
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     cfg = SearchConfig(
-        patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=1.5,
+        patience=1, widen=2.0, probes=64, probe_score="cosine", probe_outline=0.0, probe_sizes=1.5,
         probe_margin=0.2, calm_probes=64,
     )  # fmt: skip
     distractor = ((250.0, 60.0), 36.0, 1.4)
@@ -362,7 +378,7 @@ def test_a_calm_frame_whose_scan_finds_a_better_place_elsewhere_widens_the_windo
     est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # on background (the floor)
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     cfg = SearchConfig(
-        patience=2, widen=2.0, probes=64, probe_score="cosine", probe_sizes=1.5,
+        patience=2, widen=2.0, probes=64, probe_score="cosine", probe_outline=0.0, probe_sizes=1.5,
         probe_margin=0.2, calm_probes=64,
     )  # fmt: skip
     search = SearchRegion(cfg, CUBE, Peaks([((60.0, 60.0), 36.0, 1.5)]))
@@ -384,10 +400,73 @@ def test_a_calm_frame_whose_scan_finds_a_better_place_elsewhere_widens_the_windo
         assert not quiet.elsewhere
 
 
+class Outline:
+    """A silhouette whose outline contrast is 0.9 for poses that project within 10 px of
+    ``centre`` (the whole object there) and ``floor`` elsewhere (background, a distractor)."""
+
+    def __init__(self, centre, floor=0.1):
+        self.centre, self.floor, self.calls = np.array(centre), floor, 0
+
+    def outline_contrast(self, frame, R, t):
+        self.calls += 1
+        uv = t[:, :2] / t[:, 2:] * K[0, 0] + K[:2, 2]
+        return np.where(np.linalg.norm(uv + 0.5 - self.centre, axis=1) < 10.0, 0.9, self.floor)
+
+
+def test_a_probe_takes_over_only_where_its_outline_looks_like_the_tracked_objects():
+    """The networks score a distractor above the estimate's box and above anything remembered
+    (nothing is, here): without the outline check it takes over; with it (``probe_outline``,
+    the default) the outline there is far below the object's while it was tracked, so
+    phi_cand stays at the estimate; the object elsewhere, whose outline fits, takes over."""
+    est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # the estimate's box around (130, 135)
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
+    distractor = ((250.0, 60.0), 36.0, 1.4)
+    assert SearchConfig().probe_outline == 0.7 and SearchConfig().probes == 64
+
+    def run(probe_outline, peaks, outline):
+        cfg = SearchConfig(
+            patience=1, widen=2.0, probe_score="cosine", probe_sizes=1.5, probe_margin=0.2,
+            calm_probes=0, probe_outline=probe_outline,
+        )  # fmt: skip
+        search = SearchRegion(cfg, CUBE, Peaks(peaks), outline)
+        rng = np.random.default_rng(0)
+        search.frame(frame, est, rng)  # a calm, fitted frame: the object's outline, 0.9 at
+        for _ in range(8):  # the estimate; the window widens and the probes search
+            wide = _widened(search, frame, est, rng)
+            if search.elsewhere:
+                break
+        return search, wide
+
+    at_estimate = (130.0, 135.0)
+    search, wide = run(0.0, [distractor], Outline(at_estimate))
+    assert search.elsewhere and abs(wide.box[0] + wide.box[2] / 2 - 250.0) < 12
+    search, wide = run(0.7, [distractor], Outline(at_estimate))
+    assert search.calm_outlines == [0.9] and search.fitter.calls > 1  # probes were checked
+    assert not search.elsewhere and not wide.probed and wide.scale == 1.0
+    search, wide = run(0.7, [distractor], Outline(at_estimate, floor=0.9))
+    assert search.elsewhere and wide.probed  # an outline as good as the object's: it is one
+
+
+def test_a_method_without_a_silhouette_does_not_probe_while_probes_are_checked():
+    """PoseRBPF and CH-RBPF have no silhouette (no fitted frame, no yardstick): with the
+    outline check on they search as with ``probes: 0`` (the whole window, no probe scored)."""
+    est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
+    prober = Peaks([((250.0, 60.0), 36.0, 1.4)])
+    search = SearchRegion(SearchConfig(patience=1, widen=2.0), CUBE, prober)
+    rng = np.random.default_rng(0)
+    search.frame(frame, est, rng)
+    wide = _widened(search, frame, est, rng)
+    assert prober.calls == 0 and not wide.probed and wide.scale > 1.0
+    assert wide.area == wide.window  # phi_cand draws in the whole window
+
+
 def test_probes_lie_inside_the_image():
     # a crop past the border is padded: the classifier took a padded one for the object
     prober = PeakProber((300.0, 10.0), 80.0)  # a peak at the corner: boxes would reach out
-    cfg = SearchConfig(patience=1, widen=2.0, probes=64, probe_score="cosine", probe_sizes=2.0)
+    cfg = SearchConfig(
+        patience=1, widen=2.0, probes=64, probe_score="cosine", probe_outline=0.0, probe_sizes=2.0
+    )
     search = SearchRegion(cfg, CUBE, prober)
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     box = _widened(
