@@ -218,6 +218,12 @@ class PeakProber:
         return CodebookScores(cos=cos[:, None])
 
 
+UNCHECKED = dict(
+    patience=1, widen=2.0, probes=64, probe_score="cosine", probe_outline=0.0, probe_sizes=2.0
+)
+"""A search whose probes take over unchecked by the outline (the fakes have no silhouette)."""
+
+
 def _widened(search, frame, est, rng):
     for _ in range(6):
         search.update(DOUBT, 50)
@@ -226,15 +232,7 @@ def _widened(search, frame, est, rng):
 
 def test_a_widened_window_is_probed_and_its_best_box_becomes_phi_cands():
     prober = PeakProber((250.0, 60.0), 40.0)  # the object: far from the estimate
-    cfg = SearchConfig(
-        patience=1,
-        widen=2.0,
-        probes=64,
-        probe_score="cosine",
-        probe_outline=0.0,
-        probe_sizes=2.0,
-        calm_probes=0,
-    )
+    cfg = SearchConfig(**UNCHECKED, calm_probes=0)
     search = SearchRegion(cfg, CUBE, prober)
     est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # a 32 px box around (130, 135)
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
@@ -260,15 +258,7 @@ def test_the_best_probes_carry_over_widened_frames_so_a_narrow_peak_is_found():
     # refined from frame to frame they do. A calm frame without its own scan forgets them.
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))
-    cfg = SearchConfig(
-        patience=1,
-        widen=2.0,
-        probes=64,
-        probe_score="cosine",
-        probe_outline=0.0,
-        probe_sizes=2.0,
-        calm_probes=0,
-    )
+    cfg = SearchConfig(**UNCHECKED, calm_probes=0)
     found = []
     for seed in range(5):
         search = SearchRegion(cfg, CUBE, PeakProber((250.0, 60.0), 40.0, width=0.1))
@@ -286,9 +276,7 @@ def test_the_best_probes_carry_over_widened_frames_so_a_narrow_peak_is_found():
 def test_the_window_stays_widened_while_a_probe_elsewhere_beats_the_estimates_box():
     # a calm alpha on a wrong place (CH-PF settles on background) does not shrink the window
     # while the probes find something better elsewhere; on the object it shrinks again
-    cfg = SearchConfig(
-        patience=1, widen=2.0, probes=64, probe_score="cosine", probe_outline=0.0, probe_sizes=2.0
-    )
+    cfg = SearchConfig(**UNCHECKED)
     search = SearchRegion(cfg, CUBE, PeakProber((250.0, 60.0), 40.0))
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     rng = np.random.default_rng(0)
@@ -464,9 +452,7 @@ def test_a_method_without_a_silhouette_does_not_probe_while_probes_are_checked()
 def test_probes_lie_inside_the_image():
     # a crop past the border is padded: the classifier took a padded one for the object
     prober = PeakProber((300.0, 10.0), 80.0)  # a peak at the corner: boxes would reach out
-    cfg = SearchConfig(
-        patience=1, widen=2.0, probes=64, probe_score="cosine", probe_outline=0.0, probe_sizes=2.0
-    )
+    cfg = SearchConfig(**UNCHECKED)
     search = SearchRegion(cfg, CUBE, prober)
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     box = _widened(
