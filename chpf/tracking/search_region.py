@@ -55,11 +55,10 @@ With ``probes`` > 0:
   box in the last calm frame, whose texture had moved by a few pixels). A whole object also
   shows its outline: a probe's gain stands only when its outline contrast
   (chpf.tracking.silhouette; the best over its 3 best codebook orientations at 0.9, 1 and 1.1
-  times its depth) reaches
-  ``probe_outline`` times the median best contrast of the last 20 fitted frames (the object
-  as it looked while tracked), else it is lowered to the margin. A method without a silhouette
-  (PoseRBPF, CH-RBPF: no fitted frame) has no such yardstick and does not probe while the
-  check is on (``probe_outline: 0`` probes without it).
+  times its depth) reaches ``probe_outline`` times the median best contrast of the last 20
+  fitted frames (the object as it looked while tracked), else it is lowered to the margin. A
+  method without a silhouette (PoseRBPF, CH-RBPF: no fitted frame) has no such yardstick and
+  does not probe while the check is on (``probe_outline: 0`` probes without it).
 
 The probe with the highest gain takes over when that gain exceeds ``probe_margin``: it becomes
 the region's box, so phi_cand draws around it, at its depth, with orientations that match its
@@ -72,9 +71,10 @@ alpha), so the window widens after ``patience`` frames.
 The Rao-Blackwellised filters (PoseRBPF, CH-RBPF) draw at least ``poserbpf.search_fraction``
 of their particles from phi_cand where a probe took over (``Region.probed``,
 chpf.tracking.rbpf); without probes PoseRBPF draws only on its threshold reset. Unchecked
-probes cost both filters AUC under heavy occlusion on the dev suite; checked, CH-PF's cost is
-within the seeds' spread and it re-acquires a jumped object in 24 of 36 runs (1 of 12 without
-probes; docs/own-recording.md), so CH-PF probes by default and the others do not.
+probes cost both filters AUC under heavy occlusion on the dev suite. Checked, they let CH-PF
+re-acquire a jumped object in 24 of 36 runs (1 of 12 without probes) and keep 95 % of its
+every-frame AUC on the bench with the first box only; under heavy occlusion they still cost
+it on the dev suite (docs/own-recording.md). So CH-PF probes by default and the others do not.
 
 ``box_source`` (the ``search`` section of the tracking config) picks the box of each frame:
 ``auto`` the detection when the frame has one, else the search region unless a detector is
