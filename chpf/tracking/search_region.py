@@ -55,10 +55,11 @@ With ``probes`` > 0:
   box in the last calm frame, whose texture had moved by a few pixels). A whole object also
   shows its outline: a probe's gain stands only when its outline contrast
   (chpf.tracking.silhouette; the best over its 3 best codebook orientations at 0.9, 1 and 1.1
-  times its depth) reaches ``probe_outline`` times the median best contrast of the last 20
-  fitted frames (the object as it looked while tracked), else it is lowered to the margin. A
-  method without a silhouette (PoseRBPF, CH-RBPF: no fitted frame) has no such yardstick and
-  does not probe while the check is on (``probe_outline: 0`` probes without it).
+  times its depth, and for the best probe of a pass also in its box moved by ``OUTLINE_SHIFT``)
+  reaches ``probe_outline`` times the median best contrast of the last 20 fitted frames (the
+  object as it looked while tracked), else it is lowered to the margin. A method without a
+  silhouette (PoseRBPF, CH-RBPF: no fitted frame) has no such yardstick and does not probe
+  while the check is on (``probe_outline: 0`` probes without it).
 
 The probe with the highest gain takes over when that gain exceeds ``probe_margin``: it becomes
 the region's box, so phi_cand draws around it, at its depth, with orientations that match its
@@ -72,7 +73,7 @@ The Rao-Blackwellised filters (PoseRBPF, CH-RBPF) draw at least ``poserbpf.searc
 of their particles from phi_cand where a probe took over (``Region.probed``,
 chpf.tracking.rbpf); without probes PoseRBPF draws only on its threshold reset. Unchecked
 probes cost both filters AUC under heavy occlusion on the dev suite. Checked, they let CH-PF
-re-acquire a jumped object in 24 of 36 runs (1 of 12 without probes) and keep 95 % of its
+re-acquire a jumped object in 29 of 36 runs (1 of 12 without probes) and keep 95 % of its
 every-frame AUC on the bench with the first box only; under heavy occlusion they still cost
 it on the dev suite (docs/own-recording.md). So CH-PF probes by default and the others do not.
 
@@ -113,6 +114,10 @@ OUTLINE_ENTRIES = 3
 """Codebook orientations (the best cosines) at which a probe's outline is scored."""
 OUTLINE_DEPTHS = (0.9, 1.0, 1.1)
 """Factors of a probe's depth at which its outline is scored."""
+OUTLINE_SHIFT = 0.1
+"""The best checked probe's outline is also scored with its box moved by this share of its
+side (a probe lies within about 0.1 of a side of the object, and a box's outline is sharp;
+shifting every checked probe let distractors through too: docs/own-recording.md)."""
 CALM_OUTLINES = 20
 """Fitted frames whose best outline contrast make the yardstick of ``probe_outline``."""
 DECOY_AWAY = 1.5
@@ -387,20 +392,28 @@ class SearchRegion:
         bar = self.config.probe_outline * float(np.median(self.calm_outlines))
         gain = gain.copy()
         for k, i in enumerate(order):
-            if k >= OUTLINE_CHECKS or self.outline_contrast(frame, boxes[i]) < bar:
+            if k >= OUTLINE_CHECKS or self.outline_contrast(frame, boxes[i], k == 0) < bar:
                 gain[i] = self.config.probe_margin
         return gain
 
-    def outline_contrast(self, frame: Frame, box: np.ndarray) -> float:
+    def outline_contrast(self, frame: Frame, box: np.ndarray, shifted: bool = False) -> float:
         """The best outline contrast (chpf.tracking.silhouette) of the object in the probe
         ``box`` (4,) pixels: at the ``OUTLINE_ENTRIES`` codebook orientations that best match
-        its crop, at ``OUTLINE_DEPTHS`` times its depth."""
+        its crop, at ``OUTLINE_DEPTHS`` times its depth; ``shifted``: also in the box moved
+        by ``OUTLINE_SHIFT`` of its side in u, v or both (9 boxes)."""
         assert self.prober is not None and self.fitter is not None
-        R, t = probe_poses(self.prober, frame, box[None], OUTLINE_ENTRIES)
-        factors = np.repeat(np.asarray(OUTLINE_DEPTHS), R.shape[1])  # depth-major
-        ts = factors[:, None] * t
-        Rs = np.tile(R[0], (len(OUTLINE_DEPTHS), 1, 1))
-        a = self.fitter.outline_contrast(frame, Rs, ts)
+        boxes = np.array(box, dtype=np.float64)[None]
+        if shifted:
+            steps = OUTLINE_SHIFT * np.array([-1.0, 0.0, 1.0])
+            du, dv = (g.ravel() for g in np.meshgrid(steps, steps))
+            boxes = np.repeat(boxes, du.size, axis=0)
+            boxes[:, 0] += du * boxes[:, 2]
+            boxes[:, 1] += dv * boxes[:, 3]
+        R, t = probe_poses(self.prober, frame, boxes, OUTLINE_ENTRIES)  # (M,k,3,3), (M,3)
+        factors = np.asarray(OUTLINE_DEPTHS)
+        ts = factors[:, None, None, None] * np.broadcast_to(t[:, None], (*R.shape[:2], 3))
+        Rs = np.broadcast_to(R, (factors.size, *R.shape)).reshape(-1, 3, 3)
+        a = self.fitter.outline_contrast(frame, Rs, ts.reshape(-1, 3))
         return 0.0 if a is None else float(np.max(a))
 
     def remember(self, frame: Frame, t: np.ndarray, rng: np.random.Generator) -> None:

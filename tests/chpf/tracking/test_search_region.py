@@ -435,6 +435,16 @@ def test_a_probe_takes_over_only_where_its_outline_looks_like_the_tracked_object
     assert search.elsewhere and wide.probed  # an outline as good as the object's: it is one
 
 
+def test_the_best_checked_probe_is_also_scored_a_tenth_of_its_side_off():
+    """A probe lies within about 0.1 of a side of the object and a box's outline is sharp: the
+    best checked probe is also scored in its box moved by 0.1 of its side (9 boxes)."""
+    search = SearchRegion(SearchConfig(), CUBE, Peaks([]), Outline((100.0, 100.0)))
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
+    box = np.array([62.0 - 0.5, 50.0 - 0.5, 100.0, 100.0])  # centred 12 px right of it
+    assert search.outline_contrast(frame, box) == pytest.approx(0.1)
+    assert search.outline_contrast(frame, box, shifted=True) == pytest.approx(0.9)
+
+
 def test_a_method_without_a_silhouette_does_not_probe_while_probes_are_checked():
     """PoseRBPF and CH-RBPF have no silhouette (no fitted frame, no yardstick): with the
     outline check on they search as with ``probes: 0`` (the whole window, no probe scored)."""
