@@ -49,16 +49,24 @@ class Probed(Protocol):
     def codebook_scores(self, frame: Frame, t: np.ndarray) -> CodebookScores: ...
 
 
+def probe_codebook(
+    likelihood: Probed, frame: Frame, boxes: np.ndarray
+) -> tuple[CodebookScores, np.ndarray]:
+    """The codebook scores of probe boxes (M,4) (x, y, w, h) pixels in ``frame`` and the boxes'
+    translations t (M,3) metres (the object at the box's centre, its extent spanning the box).
+    The frame's box and region are ignored (the classifier's box-scale term reads a detection
+    box)."""
+    t = box_translations(boxes, frame.K, likelihood.box_extent)
+    return likelihood.codebook_scores(replace(frame, box=None, region=None), t), t
+
+
 def probe_evidence(
     likelihood: Probed, frame: Frame, boxes: np.ndarray, with_c: bool = True
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The evidence of probe boxes (M,4) (x, y, w, h) pixels in ``frame``: the best codebook
     cosine (M,) of each crop and the classifier's C (M,) of the crop against that best entry
-    (None when ``with_c`` is false or the likelihood has no classifier). The frame's box and
-    region are ignored (the classifier's box-scale term reads a detection box)."""
-    frame = replace(frame, box=None, region=None)
-    t = box_translations(boxes, frame.K, likelihood.box_extent)
-    scores = likelihood.codebook_scores(frame, t)
+    (None when ``with_c`` is false or the likelihood has no classifier; ``probe_codebook``)."""
+    scores, _ = probe_codebook(likelihood, frame, boxes)
     cos = scores.cos.max(axis=1)
     if not with_c or scores.misaligned is None:
         return cos, None
@@ -71,9 +79,8 @@ def probe_poses(
     """The object's poses in probe boxes (M,4) (x, y, w, h) pixels: the ``k`` codebook
     orientations R (M,k,3,3) whose cosines with each crop are highest, seen at the box's
     translation t (M,3) metres."""
-    frame = replace(frame, box=None, region=None)
-    t = box_translations(boxes, frame.K, likelihood.box_extent)
-    top = np.argsort(-likelihood.codebook_scores(frame, t).cos, axis=1)[:, :k]
+    scores, t = probe_codebook(likelihood, frame, boxes)
+    top = np.argsort(-scores.cos, axis=1)[:, :k]
     R = allocentric_to_egocentric(
         likelihood.grid.rotations[top.ravel()], np.repeat(t, top.shape[1], axis=0)
     )
