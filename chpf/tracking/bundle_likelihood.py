@@ -40,6 +40,11 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
    larger (too near), which neither network nor C_box contradicts, so in the weights it
    pulled the set's depth nearer (docs/chpf-ablations.md).
 
+   Near (``c_near``, a margin m, None = off): a hypothesis whose projected box extends past the
+   detection box on all four sides, by o (the least of the four, a fraction of the projected
+   side), is too near: an occluder shrinks the box from one or two sides, not from all four.
+   C_near = ``edge_counter_evidence(o, m)`` joins C_edge (1 - (1 - C_edge)(1 - C_near)).
+
 7. orientation search (``refine_neighbours`` k > 1, 0 = off): before steps 3-4, each particle's
    nearest entry and its k - 1 nearest grid neighbours are compared with its crop's embedding
    (the crop depends on t only, so no more encoder passes), and the particle's orientation moves
@@ -161,6 +166,7 @@ class BundleLikelihood:
         c_box: float | None = None,
         c_box_shape: str = "gauss",
         c_edge: float | None = None,
+        c_near: float | None = None,
         c_silhouette: float | None = None,
         silhouette_cue: str = "region",
         refine_neighbours: int = 0,
@@ -192,6 +198,7 @@ class BundleLikelihood:
         self.c_box = c_box
         self.c_box_shape = c_box_shape
         self.c_edge = c_edge
+        self.c_near = c_near
         self.c_silhouette = c_silhouette
         self._outline: np.ndarray | None = None  # ``outline``, made on first use
         if silhouette_cue not in SILHOUETTE_CUES:
@@ -399,19 +406,25 @@ class BundleLikelihood:
         without its box."""
         box, sized = valid_box(frame.box), valid_box(frame.scale_box())
         c_box = c_edge = None
-        if sized is None or (self.c_box is None and (box is None or self.c_edge is None)):
+        edges = box is not None and (self.c_edge is not None or self.c_near is not None)
+        if sized is None or (self.c_box is None and not edges):
             return None, None
         proj = self._projected_boxes(R, t, np.asarray(frame.K))
         side = np.maximum(np.maximum(proj[:, 2] - proj[:, 0], proj[:, 3] - proj[:, 1]), 1e-6)
         if self.c_box is not None:
             rho = max(sized[2], sized[3]) / side
             c_box = box_counter_evidence(rho, self.c_box, self.c_box_shape)
-        if box is not None and self.c_edge is not None:
+        if box is not None and edges:
             x, y, w, h = box
             edges_out = np.stack(
                 [proj[:, 0] - x, proj[:, 1] - y, x + w - proj[:, 2], y + h - proj[:, 3]], axis=1
             )
-            c_edge = edge_counter_evidence(edges_out.max(axis=1) / side, self.c_edge)
+            out = edges_out.max(axis=1) / side  # the box's edge farthest outside; < 0: inside
+            c_edge = np.zeros(t.shape[0])
+            if self.c_edge is not None:
+                c_edge = edge_counter_evidence(out, self.c_edge)
+            if self.c_near is not None:
+                c_edge = either(c_edge, edge_counter_evidence(-out, self.c_near))
         return c_box, c_edge
 
     # ------------------------------------------------------------------ Rao-Blackwellised

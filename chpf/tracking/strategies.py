@@ -159,7 +159,9 @@ class CHPFConfig(Section):
     the exponent p of L in those sums (S_L sums L^p; 1 = the paper's L); c_box, the scale (s or
     m) of the box-scale counter-evidence added to C (None = none; chpf.tracking.bundle_likelihood)
     and c_box_shape its shape (BOX_SHAPES); c_edge, the margin of the box-edge counter-evidence
-    (Scores.C_edge; None = off), which alpha counts and the weights do not;
+    (Scores.C_edge; None = off), which alpha counts and the weights do not; c_near, the margin
+    of the too-near counter-evidence that joins C_edge (None = off); edge_discounts_l, whether
+    alpha's L side sums L (1 - C_edge): support that the box's edges contradict does not count;
     c_silhouette, the power p of the silhouette's counter-evidence 1 - (a / max a)^p added to C
     (chpf.tracking.silhouette; None = off) and silhouette_cue what a measures (SILHOUETTE_CUES);
     c_weight, the exponent k of the importance weights w (1 - C)^k (0 = the paper's: C only
@@ -176,6 +178,8 @@ class CHPFConfig(Section):
     c_box: float | None = setting(0.1, gt=0.0)
     c_box_shape: BoxShape = "gauss"
     c_edge: float | None = setting(0.2, gt=0.0)
+    c_near: float | None = setting(0.05, gt=0.0)
+    edge_discounts_l: bool = True
     c_silhouette: float | None = setting(1.0, gt=0.0)
     silhouette_cue: SilhouetteCue = "region"
     c_weight: float = setting(1.0, ge=0.0)
@@ -188,7 +192,8 @@ class CHPF(Strategy):
     """Counter-Hypothetical PF: alpha = S_C / (S_C + S_L), the sums as chosen by
     ``config.sums`` (CHPF_SUMS; "paper": sum C / (sum C + sum L) over every particle), S_L
     summing L ** ``config.l_power``, L and C relative to the frame's reference when
-    ``config.reference`` asks for it and the frame has one (relative_scores).
+    ``config.reference`` asks for it and the frame has one (relative_scores), and with
+    ``config.edge_discounts_l`` each L times 1 - C_edge (the box's edges contradict it).
 
     The same ratio of the values as they are is the set's doubt, which ``temper`` reads: a
     frame that shows little of the object is one to trust the likelihood less on, not one to
@@ -243,9 +248,11 @@ class CHPF(Strategy):
         L = _finite(scores.L).clip(min=0.0)
         k = self._counts(C.shape[0], weights, fresh)
         self.last_doubt = self._ratio(k, L, C)
-        if self.config.reference == "none" or scores.reference is None:
-            return self.last_doubt
-        return self._ratio(k, *relative_scores(L, C, scores.reference))
+        if self.config.reference != "none" and scores.reference is not None:
+            L, C = relative_scores(L, C, scores.reference)
+        if self.config.edge_discounts_l and scores.C_edge is not None:
+            L = L * (1.0 - scores.C_edge)
+        return self._ratio(k, L, C)
 
     def _ratio(self, k: np.ndarray, L: np.ndarray, C: np.ndarray) -> float:
         """S_C / (S_C + S_L) of L (N,), C (N,) counted k (N,) (1 when both sums are 0)."""

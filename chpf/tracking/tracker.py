@@ -137,6 +137,7 @@ class Tracker:
             c_box=cfg.chpf.c_box,
             c_box_shape=cfg.chpf.c_box_shape,
             c_edge=cfg.chpf.c_edge,
+            c_near=cfg.chpf.c_near,
             c_silhouette=cfg.chpf.c_silhouette if method == "chpf" else None,
             silhouette_cue=cfg.chpf.silhouette_cue,
             refine_neighbours=lik.refine_neighbours,

@@ -88,8 +88,9 @@ class Scores:
     R: (N,3,3) the orientations that were scored when the likelihood moved them (its
     orientation search), which the filter adopts; None when it scored the given ones.
     reference: (L_ref, C_ref), the frame's reference scores (``Reference``), or None.
-    C_edge: (N,) in [0, 1] the box-edge counter-evidence (chpf.tracking.bundle_likelihood,
-    item 6), which counts in CH-PF's alpha but not in C's weighing, or None.
+    C_edge: (N,) in [0, 1] the box-edge counter-evidence, too-near included
+    (chpf.tracking.bundle_likelihood, item 6), which counts in CH-PF's alpha but not in C's
+    weighing, or None.
     """
 
     L: np.ndarray

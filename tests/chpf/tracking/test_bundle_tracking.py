@@ -186,6 +186,25 @@ def test_c_edge_counts_a_hypothesis_that_leaves_the_detection_box_outside(
     assert BundleLikelihood(bundle).score(frame, R, t).C_edge is None
 
 
+def test_c_near_counts_a_hypothesis_that_projects_past_the_box_on_all_four_sides(
+    bundle, rendered_sequence
+):
+    """The truth at 0.7 of its depth projects 1.4 times larger, past the detection box on
+    every side by more than a tenth of its side: C_edge > 0.5 with c_near 0.05 (0 without). The
+    truth, and the truth against a box of its left half (an occluded object), do not."""
+    seq = rendered_sequence
+    box = seq.box(0)
+    frame = Frame(seq.rgb[0], None, seq.K, box)
+    t = np.stack([seq.t[0], 0.7 * seq.t[0]])
+    R = np.repeat(seq.R[:1], 2, 0)
+    near = BundleLikelihood(bundle, c_edge=0.2, c_near=0.05)
+    C_edge = near.score(frame, R, t).C_edge
+    assert C_edge is not None and C_edge[0] == 0.0 and C_edge[1] > 0.5
+    assert BundleLikelihood(bundle, c_edge=0.2).score(frame, R, t).C_edge[1] == 0.0
+    left_half = Frame(seq.rgb[0], None, seq.K, (box[0], box[1], box[2] / 2, box[3]))
+    assert near.score(left_half, R[:1], t[:1]).C_edge[0] == 0.0
+
+
 def test_codebook_scores_give_the_box_edge_evidence_of_an_entry(bundle, rendered_sequence):
     """CH-RBPF's C_edge: the truth's nearest entry at the true translation contains the box,
     at a translation 0.6 box sides aside it does not."""

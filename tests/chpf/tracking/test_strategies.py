@@ -34,8 +34,8 @@ W_FIXED = np.array([0.4, 0.3, 0.1, 0.0, 0.2])  # normalised importance weights
 FRESH = np.array([False, False, True, True, False])  # just drawn from phi_cand
 
 
-def chpf(sums: str, l_power: float = 1.0) -> CHPF:
-    return CHPF(CHPFConfig(sums=sums, l_power=l_power))
+def chpf(sums: str, l_power: float = 1.0, edge_discounts_l: bool = False) -> CHPF:
+    return CHPF(CHPFConfig(sums=sums, l_power=l_power, edge_discounts_l=edge_discounts_l))
 
 
 def test_chpf_paper_alpha_is_sum_c_over_sum_c_plus_sum_l():
@@ -180,6 +180,24 @@ def test_chpf_alpha_counts_the_box_edge_evidence_and_the_weights_do_not():
     framed = Scores(L=L_FIXED, w=L_FIXED.copy(), C=C_FIXED, reference=(0.5, 0.2))
     framed_edged = Scores(L=L_FIXED, w=L_FIXED.copy(), C=C_FIXED, reference=(0.5, 0.2), C_edge=edge)
     assert chpf("paper").alpha(framed_edged) > chpf("paper").alpha(framed)
+
+
+def test_edge_discounts_l_takes_the_support_the_box_contradicts_out_of_alpha():
+    """edge_discounts_l (the default): alpha's L side sums L (1 - C_edge), after the
+    reference; the doubt that ``temper`` reads keeps L as it is."""
+    assert CHPFConfig().edge_discounts_l and CHPFConfig().c_near == 0.05
+    edge = np.array([0.0, 0.5, 0.0, 0.0, 1.0])
+    edged = Scores(L=L_FIXED, w=L_FIXED.copy(), C=C_FIXED, C_edge=edge)
+    sum_c = C_FIXED.sum() + 0.6 * 0.5 + 0.4 * 1.0
+    sum_l = 0.9 + 0.5 * 0.5 + 0.1
+    rule = chpf("paper", edge_discounts_l=True)
+    assert rule.alpha(edged) == pytest.approx(sum_c / (sum_c + sum_l))
+    assert rule.last_doubt == pytest.approx(sum_c / (sum_c + L_FIXED.sum()))
+    framed = Scores(L=L_FIXED, w=L_FIXED.copy(), C=C_FIXED, reference=(0.5, 0.2), C_edge=edge)
+    L_rel = np.minimum(L_FIXED / 0.5, 1.0) * (1.0 - edge)
+    C_rel = np.clip((1.0 - (1.0 - C_FIXED) * (1.0 - edge) - 0.2) / 0.8, 0.0, 1.0)
+    assert rule.alpha(framed) == pytest.approx(C_rel.sum() / (C_rel.sum() + L_rel.sum()))
+    assert rule.alpha(scores()) == chpf("paper").alpha(scores())  # no C_edge: as without
 
 
 def test_chpf_without_c_is_a_config_error():
