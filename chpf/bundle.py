@@ -52,7 +52,10 @@ _CODEBOOK_ARRAYS = ("rotations", "ae_embeddings", "depth")  # + ch_embeddings un
 
 @dataclass(frozen=True)
 class ObjectInfo:
-    """The tracked object as recorded in the bundle (metres)."""
+    """The tracked object as recorded in the bundle (metres). ``file_offset`` (3,): where the
+    origin of the frame the bundle tracks in (its mesh's bounding-box centre, as its crops are
+    made: ``chpf.objects.ObjectModel.centred``) lies in the mesh file's frame; the tracker
+    reports poses in the file's frame (``to_file_frame``). ``fingerprint``: the mesh file's."""
 
     name: str
     obj_id: int
@@ -60,6 +63,12 @@ class ObjectInfo:
     symmetries_discrete: np.ndarray = field(repr=False)  # (n,4,4) float64, metres
     symmetries_continuous: list[dict[str, np.ndarray]] = field(repr=False)  # axis (3,), offset (3,)
     fingerprint: str = ""
+    file_offset: np.ndarray = field(default_factory=lambda: np.zeros(3), repr=False)
+
+    def to_file_frame(self, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """The translation (3,) metres, in the mesh file's frame, of the pose R (3,3), t (3,)
+        of the bundle's frame: the same placement of the object, t - R file_offset."""
+        return np.asarray(t, dtype=np.float64) - np.asarray(R, dtype=np.float64) @ self.file_offset
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ObjectInfo:
@@ -79,6 +88,7 @@ class ObjectInfo:
             symmetries_discrete=disc,
             symmetries_continuous=cont,
             fingerprint=str(d.get("fingerprint", "")),
+            file_offset=np.asarray(d.get("file_offset", (0.0, 0.0, 0.0)), np.float64).reshape(3),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -93,6 +103,7 @@ class ObjectInfo:
                 for s in self.symmetries_continuous
             ],
             "fingerprint": self.fingerprint,
+            "file_offset": np.asarray(self.file_offset).tolist(),
         }
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 import hashlib
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,8 @@ POINTS_SEED = 0
 BUILTIN_OBJECTS: dict[str, int] = {"mug": 1, "box": 2, "can": 3, "drill": 4}
 MESH_UNITS: dict[str, float] = {"mm": 0.001, "cm": 0.01, "m": 1.0}
 """Length units of mesh files (``--unit``) and their size in metres."""
+CENTRED_TOLERANCE = 1e-6
+"""Metres: a bounding box centred this close to the origin counts as centred (``centred``)."""
 SIZE_RANGE = (0.01, 2.0)
 """Plausible object diameters (metres): outside it the mesh's unit is probably wrong."""
 
@@ -51,8 +53,11 @@ class ObjectModel:
     M <= 2000 by default). ``symmetries_discrete``: list of (4, 4) object-frame transforms
     (translation in metres); ``symmetries_continuous``: list of ``{"axis": (3,), "offset": (3,)}``
     (offset in metres), as in BOP ``models_info.json``. ``source`` and ``unit``: the mesh file
-    and its unit (``load_mesh``), so that data made from it can find it again. Compared by
-    identity.
+    and its unit (``load_mesh``), so that data made from it can find it again. ``file_offset``
+    (3,) metres: where this model's origin lies in the mesh file's frame (a point p of the model
+    is p + file_offset in the file); zero as loaded, the bounding box's centre after
+    ``centred()``, whose ``file_fingerprint`` keeps the file's ``object_fingerprint``. Compared
+    by identity.
     """
 
     name: str
@@ -64,11 +69,43 @@ class ObjectModel:
     obj_id: int = 0
     source: str | None = None  # the mesh file (absolute path) it was loaded from; None: built-in
     unit: str = "m"  # that file's length unit
+    file_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    file_fingerprint: str | None = None  # the file's fingerprint, for a centred() model
 
     @property
     def num_triangles(self) -> int:
         """Number of faces of the mesh."""
         return len(self.mesh.faces)
+
+    def centred(self) -> ObjectModel:
+        """This object with its origin moved to the centre of its bounding box (``file_offset``
+        records where that is in the file's frame; symmetries move with it): crops are centred
+        on the origin (chpf.crops), so a mesh whose origin lies at its base or a corner would be
+        cut by its own crops and placed off its detection box. Itself when already centred
+        (within a micrometre)."""
+        v = np.asarray(self.mesh.vertices, dtype=np.float64)
+        c = (v.min(axis=0) + v.max(axis=0)) / 2.0
+        if np.all(np.abs(c) < CENTRED_TOLERANCE):
+            return self
+        mesh = self.mesh.copy()
+        mesh.apply_translation(-c)
+        shift = np.eye(4)
+        shift[:3, 3] = c  # model -> file frame
+        return replace(
+            self,
+            mesh=mesh,
+            points=self.points - c,
+            symmetries_discrete=[
+                np.linalg.inv(shift) @ np.asarray(T, dtype=np.float64) @ shift
+                for T in self.symmetries_discrete
+            ],
+            symmetries_continuous=[
+                {"axis": s["axis"], "offset": np.asarray(s["offset"], dtype=np.float64) - c}
+                for s in self.symmetries_continuous
+            ],
+            file_offset=self.file_offset + c,
+            file_fingerprint=self.file_fingerprint or object_fingerprint(self),
+        )
 
     def __repr__(self) -> str:
         return (
@@ -209,9 +246,15 @@ def load_mesh(
 
 
 def object_fingerprint(obj: ObjectModel) -> str:
-    """sha1 hex of the mesh's vertices, faces and colours (vertex/face colours or texture)."""
-    mesh = obj.mesh
+    """sha1 hex of the mesh's vertices, faces and colours (vertex/face colours or texture); of a
+    ``centred`` model, of its file's fingerprint and ``file_offset`` (data rendered from it
+    differs from data rendered from the file's frame)."""
     h = hashlib.sha1()
+    if obj.file_fingerprint is not None:
+        h.update(obj.file_fingerprint.encode())
+        h.update(np.ascontiguousarray(obj.file_offset, dtype=np.float64).tobytes())
+        return h.hexdigest()
+    mesh = obj.mesh
     h.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
     h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
     visual = mesh.visual

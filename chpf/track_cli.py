@@ -490,7 +490,10 @@ def make_sinks(
         from chpf.tracking.overlay import OverlayWriter
 
         n = {m: cfg.filter.n_particles for m in methods}
-        points = {o: outline_points(b) for o, b in zip(obj_ids, bundles, strict=True)}
+        points = {  # in the mesh file's frame, as the poses are (ObjectInfo.file_offset)
+            o: outline_points(b) + b.obj_info.file_offset
+            for o, b in zip(obj_ids, bundles, strict=True)
+        }
         axes = {o: 0.5 * b.obj_info.diameter for o, b in zip(obj_ids, bundles, strict=True)}
         sinks.append(OverlayWriter(args.overlay, methods, points, axes, fps, n, names))
     if args.poses is not None:

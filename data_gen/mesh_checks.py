@@ -229,7 +229,7 @@ def checked_object(name_or_path: str, unit: str = "m", allow_size: bool = False)
     """``chpf.objects.get_object`` for the commands that start hours of work: a built-in object
     as it is, a mesh file through ``check_mesh`` (checked against the symmetries of a
     ``models_info.json`` beside it, ``declared_symmetries``; returned without symmetries, as
-    ``get_object`` gives it)."""
+    ``get_object`` gives it), ``centred`` as every crop of it is (``ObjectModel.centred``)."""
     from chpf.objects import BUILTIN_OBJECTS, get_object
 
     if name_or_path in BUILTIN_OBJECTS:
@@ -244,4 +244,4 @@ def checked_object(name_or_path: str, unit: str = "m", allow_size: bool = False)
     # mesh (get_object: training.codebook, training.evaluate) give a mesh file none, and the
     # object must be the same everywhere
     obj.symmetries_discrete, obj.symmetries_continuous = [], []
-    return obj
+    return obj.centred()

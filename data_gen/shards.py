@@ -159,9 +159,9 @@ IDENTITY_KEYS = (
 
 
 def manifest_object(data_dir: str | Path, override: str | None = None, unit: str | None = None):
-    """The ObjectModel a data folder was made from: ``override`` (built-in name or mesh path,
-    in ``unit``) if given, else the mesh file its manifest records (``object_source``, made by
-    this version on) or the built-in it names. DatasetError (one line, naming the manifest and
+    """The ObjectModel a data folder was made from, ``centred`` as its crops are: ``override``
+    (built-in name or mesh path, in ``unit``) if given, else the mesh file its manifest records
+    (``object_source``, made by this version on) or the built-in it names. DatasetError (one line, naming the manifest and
     ``--object MESH``) when that file has moved or the object's fingerprint differs from the
     manifest's."""
     from chpf.objects import get_object, object_fingerprint
@@ -177,7 +177,7 @@ def manifest_object(data_dir: str | Path, override: str | None = None, unit: str
         )
     obj_unit = unit or (source.get("unit") if override is None else None) or "m"
     try:
-        obj = get_object(str(name), unit=obj_unit, allow_size=True)  # chpf-gen-data checked it
+        obj = get_object(str(name), unit=obj_unit, allow_size=True).centred()  # checked before
     except MeshError as err:
         raise DatasetError(
             f"{path}: {err}; pass --object MESH with the mesh chpf-gen-data used"

@@ -230,7 +230,8 @@ def export_bundle(
             {"axis": np.asarray(s["axis"], float), "offset": np.asarray(s.get("offset", (0, 0, 0)))}
             for s in model.symmetries_continuous
         ],
-        fingerprint=object_fingerprint(model),
+        fingerprint=model.file_fingerprint or object_fingerprint(model),
+        file_offset=np.asarray(model.file_offset, np.float64),
     )
     training = {
         kind: {"checkpoint": p.name, "checkpoint_sha256": sha256_file(p), **inf}

@@ -229,8 +229,8 @@ class Tracker:
         ``detections``, or auto once a detector runs, it means predict only;
         ``estimate`` also ignores the boxes given; see chpf.tracking.search_region). An
         invalid box counts as None (warned once: see ``chpf.tracking.boxes.BoxChecker``; text
-        is an InputError). Returns a TrackResult (pose R, t metres, alpha, ..., ``region``:
-        the search region's area used)."""
+        is an InputError). Returns a TrackResult (pose R, t metres in the frame of the
+        bundle's mesh file, alpha, ..., ``region``: the search region's area used)."""
         K_arr = check_frame(rgb, depth, K)  # type: ignore[arg-type]
         checked = self.boxes.check(box, f"frame {self.frame}")
         if self.modality == "rgb":
@@ -244,4 +244,6 @@ class Tracker:
         result = self.filter.step(frame)
         self.search.update(result, self.config.filter.n_particles)
         result.region = None if frame.region is None else frame.region.window
+        if result.R is not None and result.t is not None:  # the bundle's frame -> the mesh's
+            result.t = self.bundle.obj_info.to_file_frame(result.R, result.t)
         return result

@@ -233,3 +233,15 @@ def test_error_messages_are_one_line(tmp_path):
 def test_runtime_does_not_import_torch():
     code = "import sys, chpf.bundle; sys.exit(1 if 'torch' in sys.modules else 0)"
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
+
+
+def test_object_info_keeps_the_mesh_files_offset():
+    """A manifest records where the tracked frame's origin lies in the mesh file's frame; one
+    written before that field (the shipped bundles, centred objects) reads as zero."""
+    from chpf.bundle import ObjectInfo
+
+    entry = {"name": "part", "obj_id": 5, "diameter": 0.1, "file_offset": [0.0, 0.02, 0.04]}
+    info = ObjectInfo.from_dict(entry)
+    np.testing.assert_allclose(ObjectInfo.from_dict(info.to_dict()).file_offset, [0, 0.02, 0.04])
+    del entry["file_offset"]
+    np.testing.assert_array_equal(ObjectInfo.from_dict(entry).file_offset, np.zeros(3))

@@ -219,3 +219,32 @@ def test_implausible_sizes_are_refused_naming_the_unit_that_fits(tmp_path):
     box_mesh(0.001).export(tiny)  # 0.37 mm in metres: no unit makes it 1 cm - 2 m
     with pytest.raises(MeshError, match=r"outside 1 cm - 2 m: no unit"):
         get_object(str(tiny), unit="mm")
+
+
+def test_centred_moves_the_origin_to_the_box_centre_and_keeps_the_file_frame():
+    """A mesh whose origin is off its centre (a CAD part at its base): centred() moves the
+    origin to the bounding box's centre, moves points and symmetries with it, records where it
+    lies in the file (file_offset) and the file's fingerprint; a centred model is itself."""
+    c = np.array([0.04, -0.03, 0.12])
+    mesh = box_mesh()
+    mesh.apply_translation(c)
+    half_turn = np.eye(4)  # the box's half-turn about z, in the file's frame (about c's axis)
+    half_turn[:3, :3] = np.diag([-1.0, -1.0, 1.0])
+    half_turn[:3, 3] = [2 * c[0], 2 * c[1], 0.0]
+    axis = {"axis": np.array([0.0, 0.0, 1.0]), "offset": c.copy()}
+    obj = make_object(mesh, "part", symmetries_discrete=[half_turn], symmetries_continuous=[axis])
+    centred = obj.centred()
+    v = np.asarray(centred.mesh.vertices)
+    np.testing.assert_allclose((v.min(0) + v.max(0)) / 2, 0.0, atol=1e-12)
+    np.testing.assert_allclose(centred.file_offset, c)
+    np.testing.assert_allclose(centred.points + c, obj.points)
+    np.testing.assert_allclose(np.asarray(obj.mesh.vertices), c + v)  # the file's mesh as it was
+    T = centred.symmetries_discrete[0]
+    np.testing.assert_allclose(T[:3, 3], 0.0, atol=1e-12)  # a half-turn about the centre
+    np.testing.assert_allclose(centred.symmetries_continuous[0]["offset"], 0.0, atol=1e-12)
+    assert centred.diameter == obj.diameter
+    assert centred.file_fingerprint == object_fingerprint(obj)
+    assert object_fingerprint(centred) != object_fingerprint(obj)  # its crops differ
+    assert centred.centred() is centred
+    box = builtin_object("box")
+    assert box.centred() is box

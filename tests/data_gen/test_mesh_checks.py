@@ -128,3 +128,21 @@ def test_gen_data_exits_2_with_one_line(tmp_path, capsys, monkeypatch):
     out = tmp_path / "ae"
     err = console_error(cli, capsys, monkeypatch, "ae", "--object", holes, "--out", out, "--n", 4)
     assert "h.ply: mesh would render with holes" in err, err
+
+
+def test_a_mesh_off_its_origin_is_cropped_whole(tmp_path):
+    """A mesh whose origin is at its base (as CAD parts and pybullet's duck are): the object
+    the data commands use is centred, so its crops (centred on the origin) show all of it;
+    before, a duck's head fell outside its own codebook crops."""
+    from chpf.crops import CropSpec, render_crops
+    from chpf.geometry import RotationGrid
+    from data_gen.mesh_checks import checked_object
+
+    mesh = _coloured(trimesh.creation.box((0.1, 0.06, 0.2)))
+    mesh.apply_translation((0.0, 0.0, 0.1))  # origin at the bottom face
+    obj = checked_object(_write(mesh, tmp_path / "part.ply"))
+    spec = CropSpec.for_object(obj.diameter, 64)
+    mask = render_crops(None, obj, RotationGrid.uniform(12).rotations, spec, rgb=False).mask
+    border = mask[:, 0].any() or mask[:, -1].any() or mask[:, :, 0].any() or mask[:, :, -1].any()
+    assert mask.any(axis=(1, 2)).all() and not border
+    np.testing.assert_allclose(obj.file_offset, (0.0, 0.0, 0.1), atol=1e-9)

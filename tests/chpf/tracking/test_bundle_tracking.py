@@ -767,3 +767,21 @@ def test_boxes_as_text_are_refused_and_invalid_boxes_warned_once(bundle, rendere
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # once per tracker, also after a reset
         assert not tr.step(seq.rgb[0], K=seq.K, box=(0, 0, 0, 0)).ok
+
+
+def test_poses_come_out_in_the_mesh_files_frame(template_bundle, rendered_sequence):
+    """A bundle made from a mesh whose origin is off its centre tracks the centred object
+    (ObjectInfo.file_offset) and reports each pose in the file's frame: the same rotation, and
+    t - R file_offset, so that R p + t places the file's points p where the tracked ones are."""
+    seq = rendered_sequence
+    offset = np.array([0.01, -0.02, 0.05])
+    plain = Bundle.load(template_bundle)
+    shifted = Bundle.load(template_bundle)
+    shifted.obj_info = replace(shifted.obj_info, file_offset=offset)
+    runs = [Tracker(b, method="chpf", seed=3) for b in (plain, shifted)]
+    for i in range(3):
+        a, b = (tr.step(seq.rgb[i], K=seq.K, box=seq.box(i)) for tr in runs)
+        np.testing.assert_array_equal(a.R, b.R)
+        np.testing.assert_allclose(b.t, a.t - a.R @ offset, atol=1e-12)
+        p = np.array([0.03, 0.0, -0.01])  # a point of the centred object, and of the file's
+        np.testing.assert_allclose(b.R @ (p + offset) + b.t, a.R @ p + a.t, atol=1e-12)
