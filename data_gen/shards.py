@@ -161,9 +161,9 @@ IDENTITY_KEYS = (
 def manifest_object(data_dir: str | Path, override: str | None = None, unit: str | None = None):
     """The ObjectModel a data folder was made from, ``centred`` as its crops are: ``override``
     (built-in name or mesh path, in ``unit``) if given, else the mesh file its manifest records
-    (``object_source``, made by this version on) or the built-in it names. DatasetError (one line, naming the manifest and
-    ``--object MESH``) when that file has moved or the object's fingerprint differs from the
-    manifest's."""
+    (``object_source``, made by this version on) or the built-in it names. DatasetError (one
+    line, naming the manifest and ``--object MESH``) when that file has moved or the object's
+    fingerprint differs from the manifest's."""
     from chpf.objects import get_object, object_fingerprint
 
     path = Path(data_dir) / MANIFEST

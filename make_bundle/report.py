@@ -48,6 +48,27 @@ def budget_cost(settings: dict, workers: int) -> list[str]:
     ]
 
 
+def object_lines(manifest: dict | None) -> list[str]:
+    """Markdown lines: the bundle's object, and the point it is tracked about (its mesh's
+    bounding-box centre, chpf.objects.ObjectModel.centred) in the mesh file's frame; nothing
+    without a bundle manifest."""
+    obj = (manifest or {}).get("object")
+    if not obj:
+        return []
+    x, y, z = (1000.0 * v for v in obj.get("file_offset", (0.0, 0.0, 0.0)))
+    return [
+        "## Object",
+        "",
+        "| figure | value |",
+        "| --- | --- |",
+        f"| name, obj_id | {obj['name']}, {obj['obj_id']} |",
+        f"| diameter | {1000.0 * obj['diameter']:.1f} mm |",
+        f"| crops centred on (the bounding box's centre, in the mesh file's frame; poses are "
+        f"reported in that frame) | ({x:.1f}, {y:.1f}, {z:.1f}) mm |",
+        "",
+    ]
+
+
 def write_report(out: Path, work: Path, argv: list[str], settings: dict, plan_md: str,
                  stage_md: str, workers: int) -> Path:  # fmt: skip
     lines = [
@@ -74,6 +95,7 @@ def write_report(out: Path, work: Path, argv: list[str], settings: dict, plan_md
         stage_md,
         "",
     ]
+    lines += object_lines(_j(out / "manifest.json"))
     lines += budget_cost(settings, workers)
     for name, title in (
         ("eval_ae", "Autoencoder retrieval (held-out ae crops, no jitter)"),

@@ -272,3 +272,27 @@ def test_trainer_options_reach_both_trainings(tmp_path: Path, capfd) -> None:
         )  # fmt: skip
     assert (logs.out + logs.err).count("MEMBER: 2/2") >= 2  # a world of two, each training
     Bundle.load(out)
+
+
+def test_a_mesh_off_its_origin_makes_a_bundle_that_reports_poses_in_its_frame(
+    tmp_path: Path,
+) -> None:
+    """A CAD-like part whose origin is at its base: every stage runs on the centred part, the
+    bundle records where the centre is in the file, and its test sequence (the file's frame,
+    as a user's dataset would be) passes the bundle's dataset check and is tracked."""
+    from chpf.objects import load_mesh, object_fingerprint
+
+    mesh = trimesh.creation.box(extents=np.array([0.12, 0.08, 0.05]))
+    rng = np.random.default_rng(0)
+    mesh.visual.face_colors = rng.integers(0, 256, (len(mesh.faces), 4), dtype=np.uint8) | 255
+    mesh.apply_translation((0.0, 0.0, 0.025))  # the origin on its bottom face
+    path = tmp_path / "obj_000007.ply"
+    mesh.export(path)
+    out = tmp_path / "part"
+    args = [a if a != "box" else str(path) for a in ARGS]
+    assert main([*args, "--out", str(out)]) == 0
+    info = Bundle.load(out).obj_info
+    np.testing.assert_allclose(info.file_offset, (0.0, 0.0, 0.025), atol=1e-9)
+    assert info.obj_id == 7 and info.fingerprint == object_fingerprint(load_mesh(path))
+    rep = (out / "report.md").read_text()
+    assert "| track |" in rep and "poserbpf" in rep and "| (0.0, 0.0, 25.0) mm |" in rep
