@@ -93,14 +93,11 @@ class RuntimeConfig(Section):
     """threads: onnxruntime intra-op threads; spin: its idle threads busy-wait (starves the
     filter's numpy); library_threads: OpenCV and BLAS threads; crop_size: expected bundle
     crop size (None = any); precision: the encoders' (chpf.bundle.PRECISIONS; int8 needs a
-    bundle made by chpf-quantize); device: where the networks run (chpf.providers.DEVICES);
-    object_threads: several objects (chpf.tracking.multi) step up to this many at once, each in
-    its own thread (onnxruntime, OpenCV and numpy's large operations release the GIL)."""
+    bundle made by chpf-quantize); device: where the networks run (chpf.providers.DEVICES)."""
 
     threads: int = setting(2, ge=1)
     spin: bool = False
     library_threads: int = setting(1, ge=1)
-    object_threads: int = setting(1, ge=1)
     crop_size: int | None = None
     precision: Literal["float32", "int8"] = "float32"
     device: Literal["auto", "cpu", "cuda"] = "auto"

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -63,8 +62,6 @@ class MultiTracker:
         self.obj_ids = ids
         self.last_ms = [0.0] * len(trackers)
         self.seed: int | Sequence[int] = trackers[0].seed
-        workers = min(self.config.runtime.object_threads, len(trackers))
-        self._pool = ThreadPoolExecutor(workers, "chpf-object") if workers > 1 else None
         self.reset()
 
     @classmethod
@@ -138,13 +135,9 @@ class MultiTracker:
         """One frame for every object (see ``Tracker.step``); returns one TrackResult per
         object, in order."""
         per = self._boxes(boxes)
-
-        def one(k: int) -> TrackResult:
+        results = []
+        for k, (t, box) in enumerate(zip(self.trackers, per, strict=True)):
             t0 = time.perf_counter()
-            result = self.trackers[k].step(rgb, depth=depth, K=K, box=per[k])
+            results.append(t.step(rgb, depth=depth, K=K, box=box))
             self.last_ms[k] = (time.perf_counter() - t0) * 1000.0
-            return result
-
-        if self._pool is None:
-            return [one(k) for k in range(len(self.trackers))]
-        return list(self._pool.map(one, range(len(self.trackers))))
+        return results

@@ -84,16 +84,13 @@ def two_object_dataset(tmp_path, n: int = N):
 # --- the Python API ---------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("object_threads", [1, 2])
-def test_multitracker_steps_every_object_as_lone_trackers_would(bundle, object_threads):
-    """In turn or in threads (runtime.object_threads), each object gets a lone tracker's poses."""
+def test_multitracker_steps_every_object_as_lone_trackers_would(bundle):
     rgb = [read_rgb(f) for f in demo_frames(3)]
     box = tuple(demo_box(1))
     other = (20.0, 60.0, 60.0, 80.0)
     cfg = {"filter": {"n_particles": 10}}
     lone = [Tracker(bundle, seed=3, config=cfg) for _ in range(2)]
-    threaded = {**cfg, "runtime": {"object_threads": object_threads}}
-    two = MultiTracker([Tracker(bundle, seed=3, config=threaded) for _ in range(2)], [2, 5])
+    two = MultiTracker([Tracker(bundle, seed=3, config=cfg) for _ in range(2)], [2, 5])
     for i, img in enumerate(rgb):
         boxes = [box, other] if i == 0 else [None, None]
         alone = [t.step(img, K=DEMO_K, box=b) for t, b in zip(lone, boxes, strict=True)]
