@@ -83,8 +83,7 @@ class ObjectModel:
         on the origin (chpf.crops), so a mesh whose origin lies at its base or a corner would be
         cut by its own crops and placed off its detection box. Itself when already centred
         (within a micrometre)."""
-        v = np.asarray(self.mesh.vertices, dtype=np.float64)
-        c = (v.min(axis=0) + v.max(axis=0)) / 2.0
+        c = bounding_box_centre(self.mesh.vertices)
         if np.all(np.abs(c) < CENTRED_TOLERANCE):
             return self
         mesh = self.mesh.copy()
@@ -115,6 +114,12 @@ class ObjectModel:
 
 
 # ----------------------------------------------------------------------------- geometry
+
+
+def bounding_box_centre(vertices: np.ndarray) -> np.ndarray:
+    """The centre (3,) of the axis-aligned bounding box of vertices (V,3), in their units."""
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    return (v.min(axis=0) + v.max(axis=0)) / 2.0
 
 
 def mesh_diameter(vertices: np.ndarray) -> float:
@@ -491,7 +496,7 @@ class _MeshBuilder:
         vertices = corners[first]
         vcols = np.concatenate([ccols[first], np.full((len(first), 1), 255, np.uint8)], axis=1)
         faces = inverse.reshape(-1, 3)
-        centre = (vertices.min(0) + vertices.max(0)) / 2.0
+        centre = bounding_box_centre(vertices)
         return trimesh.Trimesh(
             vertices=vertices - centre, faces=faces, vertex_colors=vcols, process=False
         )
