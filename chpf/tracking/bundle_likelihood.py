@@ -214,6 +214,7 @@ class BundleLikelihood:
         # for (_cue_embedding): (crop (S,S,3), its AE embedding (1,E)) of the last, or None
         self._cue_in_batch = reference != "none"
         self._cue: tuple[np.ndarray, np.ndarray] | None = None
+        self._cue_ch: tuple[np.ndarray, np.ndarray] | None = None  # (that crop, its CH embedding)
         self.neighbours = (
             neighbour_table(self.grid, refine_neighbours) if refine_neighbours > 1 else None
         )
@@ -484,13 +485,24 @@ class BundleLikelihood:
         t0 = self._cue_translation(frame)
         if t0 is None:
             return None
-        crop, emb = self._cue_embedding(frame, t0)
+        _, emb = self._cue_embedding(frame, t0)
         cos = self._all_cosines(emb, t0[None])[0]
         k = int(np.argmax(cos))
         L_ref = likelihood_from_cosine(cos[k : k + 1].astype(np.float64), self.l_from_cos)
-        ch_emb = emb if self.bundle.shares_encoder else self.bundle.ch_embed(crop[None])
-        C_ref = self.bundle.p_misaligned(ch_emb, np.array([k]))
+        C_ref = self.box_centre_misalignment(frame, t0, np.array([k]))
         return float(L_ref[0]), float(C_ref[0])
+
+    def box_centre_misalignment(self, frame: Frame, t0: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """The learned C (M,) of codebook entries idx (M,) for the crop at the cue translation
+        t0 (3,) (box_centre_cosines'); the crop's classifier embedding is computed once."""
+        crop, emb = self._cue_embedding(frame, t0)
+        if self.bundle.shares_encoder:
+            ch_emb = emb
+        else:
+            if self._cue_ch is None or self._cue_ch[0] is not crop:
+                self._cue_ch = (crop, self.bundle.ch_embed(crop[None]))
+            ch_emb = self._cue_ch[1]
+        return self.bundle.p_misaligned(np.repeat(ch_emb, len(idx), axis=0), np.asarray(idx))
 
     def _cue_embedding(self, frame: Frame, t0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The crop (S,S,3) at the cue translation t0 (3,) and its AE embedding (1,E): the one

@@ -60,6 +60,8 @@ class CandidatesConfig(Section):
     rotations: Literal["uniform", "codebook"] = "codebook"  # codebook: entries matching the box
     temperature: float = setting(0.05, gt=0.0)  # codebook: p(entry) ~ exp((cos - max) / this)
     uniform_share: float = setting(0.25, ge=0.0, le=1.0)  # codebook: share drawn uniformly
+    rerank: int = setting(1024, ge=0)  # codebook: the classifier ranks the best cosines' entries
+    c_temperature: float = setting(0.05, gt=0.0)  # rerank: p(entry) ~ exp(-(C - min C) / this)
     depth_offset: tuple[float, float] | None = None  # RGB-D: z = measured + U(a, b); None =
     # (0, diameter / 2)
     depth_window: int = 3

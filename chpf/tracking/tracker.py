@@ -156,7 +156,13 @@ class Tracker:
             occluded_box=cand.occluded_box,
             rotations=None
             if cand.rotations == "uniform"
-            else CodebookRotations(self.likelihood, cand.temperature, cand.uniform_share),
+            else CodebookRotations(
+                self.likelihood,
+                cand.temperature,
+                cand.uniform_share,
+                cand.rerank,
+                cand.c_temperature,
+            ),
         )
         self.filter: Filter = make_filter(
             method, self.likelihood, cfg, self.candidates, np.random.default_rng(self.seed)

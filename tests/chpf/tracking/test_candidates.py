@@ -109,17 +109,24 @@ def test_valid_box():
 
 
 class _FixedScorer:
-    """Box-centre cosines that single out entries 3 (best) and 7 (second) of a small grid."""
+    """Box-centre cosines that single out entries 3 (best) and 7 (second) of a small grid; the
+    classifier finds entry 7 aligned (C 0.05), entry 20 as well (but its cosine is the least)
+    and every other entry misaligned (C 0.9)."""
 
     def __init__(self):
         from chpf.geometry import RotationGrid
 
         self.grid = RotationGrid.uniform(64)
-        self.cos = np.zeros(64)
-        self.cos[3], self.cos[7] = 0.9, 0.85
+        self.cos = np.linspace(0.5, 0.0, 64)
+        self.cos[3], self.cos[7], self.cos[20] = 0.9, 0.85, -0.5
+        self.C = np.full(64, 0.9)
+        self.C[7] = self.C[20] = 0.05
 
     def box_centre_cosines(self, frame):
         return None if frame.box is None else (self.cos, np.array([0.0, 0.0, 1.0]))
+
+    def box_centre_misalignment(self, frame, t0, idx):
+        return self.C[idx]
 
 
 def test_codebook_rotations_follow_the_box_crop_look_up():
@@ -127,10 +134,10 @@ def test_codebook_rotations_follow_the_box_crop_look_up():
     from chpf.tracking.codebook_candidates import CodebookRotations
 
     scorer = _FixedScorer()
-    source = CodebookRotations(scorer, temperature=0.05, uniform_share=0.25)
+    source = CodebookRotations(scorer, temperature=0.05, uniform_share=0.25, rerank=0)
     p = source.probabilities(scorer.cos)
     assert p.sum() == pytest.approx(1.0) and p[3] / p[7] == pytest.approx(np.exp(1.0))
-    assert p[3] / p[0] == pytest.approx(np.exp(18.0))
+    assert p[3] / p[0] == pytest.approx(np.exp(8.0))
     sampler = CandidateSampler(z_range=(0.5, 1.5), rotations=source)
     R, t = sampler.sample(400, Frame(RGB, None, K, BOX), np.random.default_rng(0))
     assert np.all(in_box(project_points(t, K), BOX))  # translations as with uniform rotations
@@ -150,6 +157,27 @@ def test_codebook_rotations_follow_the_box_crop_look_up():
     assert np.abs(R_none.mean(axis=0)).max() < 0.15
 
 
+def test_the_classifier_ranks_the_best_cosines_entries():
+    """rerank M: among the M entries of best cosine, the classifier's C decides (entry 7 over
+    the cosine's best, 3); an entry outside them (20) is never drawn, however aligned."""
+    from chpf.geometry import egocentric_to_allocentric, geodesic_angle
+    from chpf.tracking.codebook_candidates import CodebookRotations
+
+    scorer = _FixedScorer()
+    source = CodebookRotations(scorer, uniform_share=0.0, rerank=16, c_temperature=0.05)
+    frame = Frame(RGB, None, K, BOX)
+    idx, p = source.entries(frame, scorer.cos, np.zeros(3))
+    assert sorted(idx) == sorted(np.argsort(-scorer.cos)[:16]) and 20 not in idx
+    assert p.sum() == pytest.approx(1.0)
+    assert p[idx == 7][0] / p[idx == 3][0] == pytest.approx(np.exp(0.85 / 0.05))
+    t = np.tile([0.0, 0.0, 1.0], (200, 1))
+    R = source.sample(200, frame, t, np.random.default_rng(0))
+    d7 = geodesic_angle(
+        egocentric_to_allocentric(R, t), np.broadcast_to(scorer.grid.rotations[7], R.shape)
+    )
+    assert (d7 < 1e-6).all()
+
+
 def test_codebook_rotations_refuse_bad_settings():
     from chpf.errors import ConfigError
     from chpf.tracking.codebook_candidates import CodebookRotations
@@ -158,6 +186,10 @@ def test_codebook_rotations_refuse_bad_settings():
         CodebookRotations(_FixedScorer(), temperature=0.0)
     with pytest.raises(ConfigError):
         CodebookRotations(_FixedScorer(), uniform_share=1.5)
+    with pytest.raises(ConfigError):
+        CodebookRotations(_FixedScorer(), rerank=-1)
+    with pytest.raises(ConfigError):
+        CodebookRotations(_FixedScorer(), c_temperature=0.0)
 
 
 def test_a_detection_inside_the_belief_box_is_read_as_its_visible_part():
