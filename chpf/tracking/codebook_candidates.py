@@ -14,8 +14,9 @@ Why the classifier: a detection box is a few pixels off the object's centre, and
 there is misplaced. The autoencoder's embedding follows a misplaced crop (it is trained to, so
 that L tells a misplaced particle apart), and the cosine then ranks the right orientation
 anywhere in the codebook. The classifier, trained on jittered crops, still tells it: on a
-textured duck the entry nearest the truth ranked 2nd to 3602nd by cosine at boxes 4-18 px off
-(of 90) while the classifier gave it C 0.01-0.22 (README, "A real textured mesh").
+textured duck the first entry within 20 deg of the truth ranked 3rd to 3603rd by cosine at
+boxes 5-21 px off (of a 74-107 px side), while the classifier gave the truth's entry C
+0.01-0.22 there (docs/chpf-ablations.md).
 """
 
 from __future__ import annotations
