@@ -482,11 +482,10 @@ class BundleLikelihood:
             self.reference == "detection" and valid_box(frame.box) is None
         ):
             return None
-        t0 = self._cue_translation(frame)
-        if t0 is None:
+        found = self.box_centre_cosines(frame)
+        if found is None:
             return None
-        _, emb = self._cue_embedding(frame, t0)
-        cos = self._all_cosines(emb, t0[None])[0]
+        cos, t0 = found
         k = int(np.argmax(cos))
         L_ref = likelihood_from_cosine(cos[k : k + 1].astype(np.float64), self.l_from_cos)
         C_ref = self.box_centre_misalignment(frame, t0, np.array([k]))
