@@ -58,7 +58,16 @@ For N hypotheses (egocentric R (N,3,3), t (N,3) metres) of one frame:
    centre (encoded in the particles' batch) against the whole codebook: the best entry's L and
    its C (learned, without the box scale: its depth would come from the box) are
    ``Scores.reference`` (L_ref, C_ref), what a pose can score on this frame's view of the
-   object. Under occlusion they fall with the visible part as the true pose's do.
+   object. Under occlusion they fall with the visible part as the true pose's do. One crop's
+   best entry is a poor yardstick for C, and a detection of the visible part is read as a
+   whole object farther away, the same misreading as a set that lost the object there. So on
+   a frame with a detection and with ``reference_anchors`` (sides a), C_ref is the least C over
+   that crop and the crops of the squares of side a times the detection's longer side flush
+   with its sides, corners or centred (``anchored_boxes``: where the whole object would be,
+   were the detection its visible part), each at its best-cosine entry. A search region's box
+   is the model's projection at the estimate, never a visible part: there the box crop alone.
+   With a can passing in front of the shipped box bundle's object the box crop's C_ref was
+   0.94-0.99 on frames where C at the true pose was 0.00, and within 0.06 of it with them.
 
 9. silhouette (``c_silhouette``, a power p, None = off; CH-PF's C; ``silhouette_cue``): how
    well each hypothesis's projected outline fits the image, a (chpf.tracking.silhouette: the
@@ -99,7 +108,7 @@ from chpf.tracking.silhouette import (
 )
 from chpf.tracking.strategies import CHPF_REFERENCES, SILHOUETTE_CUES, either
 from chpf.tracking.timing import ms_since
-from chpf.tracking.types import CodebookScores, Frame, Reference, Scores
+from chpf.tracking.types import Box, CodebookScores, Frame, Reference, Scores
 
 
 def box_counter_evidence(rho: np.ndarray, scale: float, shape: str) -> np.ndarray:
@@ -141,6 +150,25 @@ def _codebook_extent(depth: np.ndarray, scale: float) -> np.ndarray:
     return np.maximum(span(mask.any(axis=2)), span(mask.any(axis=1))).astype(np.float64) * scale
 
 
+def anchored_boxes(box: Box, scales: tuple[float, ...]) -> np.ndarray:
+    """The object's whole box, were ``box`` (x, y, w, h) pixels only its visible part: squares
+    (M,4) (x, y, w, h) of side a max(w, h) for each a in ``scales``, flush with the box's left
+    side, its right side or centred across it, and likewise with its top, its bottom or centred
+    (9 per scale), repeats dropped and so is the centred square of side max(w, h), whose crop is
+    the box's own (box_translations: its centre, its longer side)."""
+    x, y, w, h = box
+    out = []
+    for a in scales:
+        side = a * max(w, h)
+        for x0 in (x, x + w - side, x + 0.5 * (w - side)):
+            for y0 in (y, y + h - side, y + 0.5 * (h - side)):
+                out.append((x0, y0, side, side))
+    side = max(w, h)
+    own = np.round([x + 0.5 * (w - side), y + 0.5 * (h - side), side, side], 3)
+    boxes = np.unique(np.round(np.array(out), 3), axis=0)
+    return boxes[~np.all(boxes == own, axis=1)]
+
+
 class BundleLikelihood:
     """AE likelihood L, learned C, depth L_depth / C_depth from a Bundle (see module docstring).
 
@@ -171,6 +199,7 @@ class BundleLikelihood:
         silhouette_cue: str = "region",
         refine_neighbours: int = 0,
         reference: str = "none",
+        reference_anchors: tuple[float, ...] = (),
     ) -> None:
         if c_mode not in C_MODES:
             raise ConfigError(f"c_mode must be one of {C_MODES}, got {c_mode!r}")
@@ -210,6 +239,7 @@ class BundleLikelihood:
             cue = SilhouetteEdges if silhouette_cue == "edges" else SilhouetteRegion
             self.silhouette = cue(self.outline * outline_scale(bundle, self.outline))
         self.reference = reference
+        self.reference_anchors = tuple(float(a) for a in reference_anchors)
         # the cue box's crop rides along in the particles' encoder pass once it has been asked
         # for (_cue_embedding): (crop (S,S,3), its AE embedding (1,E)) of the last, or None
         self._cue_in_batch = reference != "none"
@@ -488,8 +518,25 @@ class BundleLikelihood:
         cos, t0 = found
         k = int(np.argmax(cos))
         L_ref = likelihood_from_cosine(cos[k : k + 1].astype(np.float64), self.l_from_cos)
-        C_ref = self.box_centre_misalignment(frame, t0, np.array([k]))
-        return float(L_ref[0]), float(C_ref[0])
+        C_ref = float(self.box_centre_misalignment(frame, t0, np.array([k]))[0])
+        box = valid_box(frame.box)  # a detection may be the visible part; a region's box is not
+        if self.reference_anchors and box is not None:
+            C_ref = min(C_ref, self._anchored_misalignment(frame, box))
+        return float(L_ref[0]), C_ref
+
+    def _anchored_misalignment(self, frame: Frame, box: Box) -> float:
+        """The least learned C over the crops of the object's whole box, were ``box`` (x, y, w,
+        h) pixels only its visible part (anchored_boxes of ``reference_anchors``); each crop's
+        C is that of its best-cosine entry."""
+        boxes = anchored_boxes(box, self.reference_anchors)
+        if boxes.shape[0] == 0:
+            return 1.0
+        t = box_translations(boxes, frame.K, self.box_extent)
+        crops = extract_crops(frame.rgb, self._affines(frame, t, self.spec), self.spec.size)
+        emb = self.bundle.embed(crops)
+        best = np.argmax(self._all_cosines(emb, t), axis=1)
+        ch_emb = emb if self.bundle.shares_encoder else self.bundle.ch_embed(crops)
+        return float(np.min(self.bundle.p_misaligned(ch_emb, best)))
 
     def box_centre_misalignment(self, frame: Frame, t0: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """The learned C (M,) of codebook entries idx (M,) for the crop at the cue translation

@@ -170,7 +170,10 @@ class CHPFConfig(Section):
     round(alpha N) of them (false = the paper's); temper, how much the set's doubt flattens the
     likelihood's weights: w^(1 - temper d_prev), d_prev the previous frame's doubt S_C / (S_C +
     S_L) of the values as they are (0 = the paper's: w as it is); reference, what alpha
-    measures L and C against (CHPF_REFERENCES; "none" = the paper's)."""
+    measures L and C against (CHPF_REFERENCES; "none" = the paper's); reference_anchors, the
+    sides (times the detection's longer side) of the whole-object boxes whose crops the
+    reference's C also reads, were the detection only the visible part (empty: the box's own
+    crop only; chpf.tracking.bundle_likelihood, item 8)."""
 
     c_mode: CMode = "learned"
     sums: CHPFSums = "weighted"
@@ -186,6 +189,11 @@ class CHPFConfig(Section):
     keep_belief: bool = True
     temper: float = setting(1.0, ge=0.0, le=1.0)
     reference: CHPFReference = "box"
+    reference_anchors: tuple[float, ...] = (1.0, 1.4)
+
+    def check(self) -> None:
+        if any(not a > 0 for a in self.reference_anchors):
+            raise Invalid("reference_anchors", f"must be > 0, got {list(self.reference_anchors)}")
 
 
 class CHPF(Strategy):

@@ -142,6 +142,7 @@ class Tracker:
             silhouette_cue=cfg.chpf.silhouette_cue,
             refine_neighbours=lik.refine_neighbours,
             reference=cfg.chpf.reference if method in ("chpf", "chrbpf") else "none",
+            reference_anchors=cfg.chpf.reference_anchors,
         )
         diameter = float(bundle.obj_info.diameter)
         cand = cfg.candidates
