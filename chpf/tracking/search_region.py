@@ -32,11 +32,25 @@ phi_cand reads it as it reads any region's box, and CH-PF's box-scale C reads it
 detection's: without a detector nothing else measures the object's size, and the belief crept
 farther away (median +2.6 % on the dev suite's unoccluded frames; -0.2 % fitted).
 
+*The outline's doubt* (``outline_doubt``, a share s, with a fitter): the fit's best contrast
+also says whether the estimate is on the object. A frame whose contrast falls below s (0.5)
+times the median of the last fitted frames that looked like the object (``calm_outlines``) is
+*off the object*: it counts as doubtful (the window widens; checked on widened frames too), it
+is not remembered (a lost set's outline does not become the yardstick), and the depth that
+sizes the probes stays that of the last frame on the object. After a forced jump the set's
+doubt stayed near ``alpha_doubt`` (0.45-0.65) while its outline's contrast fell from 0.6 to
+0.04-0.2; the window closed again, the remembered contrast sank to the lost set's within 20
+frames, and the probes, sized at the lost set's depth (half the true one), could not land on
+the object. On forced-loss runs the ratio of the contrast to that median was below 0.5 on 95 %
+of the frames more than 0.3 diameters off and on 2 % of the tracked ones (below 0.7, the
+probes' bar: 97 % and 19 %; docs/own-recording.md).
+
 With ``probes`` > 0:
 
 - a widened frame is scanned over the whole image with square probe boxes
   (``SearchRegion.probe``): a grid (shifted at random each frame) whose sides lie within
-  ``probe_sizes`` of the object's side at the depth of the last frame that was not widened,
+  ``probe_sizes`` of the object's side at the depth of the last frame that was not widened
+  (with ``outline_doubt``: of the last one that looked like the object),
   plus the best probes of the previous widened frame and jittered copies of them, then a finer
   pass of jittered copies of the best; every probe lies inside the image. Each is scored by
   ``probe_score`` (chpf.tracking.probe_scores: the log-odds log10(L^3 / C) of CH-PF's rule,
@@ -149,7 +163,10 @@ class SearchConfig(Section):
     the share of the tracked object's outline contrast a probe's must reach to take over
     (``SearchRegion.outlined``; 0: not checked, and every method probes); fit_depths,
     the factors of the estimate's depth among which a calm region's box is fitted to the
-    outline's colour contrast (``SearchRegion.fitted``; empty: not fitted)."""
+    outline's colour contrast (``SearchRegion.fitted``; empty: not fitted); outline_doubt, the
+    share of the object's outline contrast below which a fitted estimate is off the object:
+    it counts as doubtful, is not remembered and does not size the probes (module docstring;
+    None: off)."""
 
     box_source: BoxSourceName = "auto"
     margin: float = setting(0.2, ge=0.0)
@@ -164,6 +181,7 @@ class SearchConfig(Section):
     calm_probes: int = setting(16, ge=0)
     probe_outline: float = setting(0.7, ge=0.0, le=1.0)
     fit_depths: tuple[float, ...] = (0.9, 0.95, 1.0, 1.05, 1.1)
+    outline_doubt: float | None = setting(0.5, gt=0.0, le=1.0)
 
     def check(self) -> None:
         if any(not f > 0 for f in self.fit_depths):
@@ -278,6 +296,7 @@ class SearchRegion:
         self.decoys = np.zeros((0, 4))  # boxes (M,4) elsewhere that looked like the object ...
         self.decoy_scores = np.zeros(0)  # ... and their scores (M,) at the last calm frame
         self.calm_outlines: list[float] = []  # the best contrast of the last fitted frames
+        self.off_object = False  # the estimate's outline did not look like the object's
 
     @property
     def points(self) -> np.ndarray:
@@ -417,15 +436,16 @@ class SearchRegion:
         return 0.0 if a is None else float(np.max(a))
 
     def remember(self, frame: Frame, t: np.ndarray, rng: np.random.Generator) -> None:
-        """A calm frame's scan: ``calm_probes`` boxes over the whole image at the estimate's
-        side (t (3,) metres), among them the decoys so far, the places found last time and a
-        jittered copy of each, scored with the estimate's own box. A probe whose ``gains``
-        exceed ``probe_margin`` is a place that looks more like the object than the estimate
-        and than anything remembered there: ``elsewhere`` (the frame counts as doubtful: the
-        filter can settle on a wrong place with a low alpha) and kept for the next frame's
-        probes. Of the others, the best ``calm_probes`` / 4 more than ``DECOY_AWAY`` sides
-        from the estimate become the decoys, with their scores (places that look like the
-        object while it is tracked elsewhere: a distractor, a patch of background)."""
+        """A calm frame's scan: ``calm_probes`` boxes over the whole image at the estimate's side (t
+        (3,) metres; with ``outline_doubt`` the side at the depth where the estimate last looked
+        like the object), among them the decoys so far, the places found last time and a jittered
+        copy of each, scored with the estimate's own box. A probe whose ``gains`` exceed
+        ``probe_margin`` is a place that looks more like the object than the estimate and than
+        anything remembered there: ``elsewhere`` (the frame counts as doubtful: the filter can
+        settle on a wrong place with a low alpha) and kept for the next frame's probes. Of the
+        others, the best ``calm_probes`` / 4 more than ``DECOY_AWAY`` sides from the estimate become
+        the decoys, with their scores (places that look like the object while it is tracked
+        elsewhere: a distractor, a patch of background)."""
         n = self.config.calm_probes
         if self.prober is None or n <= 0:
             self._kept = np.zeros((0, 4))
@@ -436,7 +456,10 @@ class SearchRegion:
         whole = (0.0, 0.0, float(width), float(height))
         own_box, side = self._own_box(frame, t)
         kept = np.concatenate([self.decoys[:m], self._kept[:m]])
-        grid = self.probe_boxes(whole, side, rng, max(n - 2 * len(kept), 1))
+        grid_side = side  # at the depth where the estimate last looked like the object
+        if self.config.outline_doubt is not None:
+            grid_side = float(frame.K[0, 0]) * self.prober.box_extent / self._z
+        grid = self.probe_boxes(whole, grid_side, rng, max(n - 2 * len(kept), 1))
         boxes = inside(np.concatenate([kept, jittered(kept, 1, rng), grid]), width, height)
         scores, _, gain = self._scored(frame, boxes, own_box, rng)
         found = gain > self.config.probe_margin
@@ -451,20 +474,20 @@ class SearchRegion:
     def probe(
         self, frame: Frame, region: Region, t: np.ndarray, rng: np.random.Generator
     ) -> Region:
-        """``region`` with its box moved to the best probe when that probe takes over, else
-        the estimate's (not widened) region. Per frame at most 1.5 ``probes`` boxes in two
-        passes: the best ``probes`` / 8 boxes of the previous probed frame and a jittered copy
-        of each (the object moves little between frames: the search goes on where it left
-        off) and ``probe_boxes`` for the rest of ``probes``, of the object's side at the depth
-        of the last frame that was not widened (its depth changes little while it is lost,
-        unlike the estimate's); then ``probes`` / 2 jittered copies (``jittered``) of the
-        probe with the highest ``gains``. The estimate's own box (at the estimate t (3,)
-        metres) is scored with the first pass. Probes rank by ``gains``: their score less the
-        estimate box's and less the decoys' nearby (``remember``), so that a place that
-        already looked like the object while it was tracked elsewhere (under occlusion the
-        object is hidden and a distractor wins) does not take over; the best ``probes`` / 8
-        are kept. The best takes over (``elsewhere``) when its gain exceeds ``probe_margin``:
-        phi_cand draws around it, at its depth, with orientations from its crop."""
+        """``region`` with its box moved to the best probe when that probe takes over, else the
+        estimate's (not widened) region. Per frame at most 1.5 ``probes`` boxes in two passes: the
+        best ``probes`` / 8 boxes of the previous probed frame and a jittered copy of each (the
+        object moves little between frames: the search goes on where it left off) and
+        ``probe_boxes`` for the rest of ``probes``, of the object's side at the depth of the last
+        frame that was not widened (with ``outline_doubt``: that looked like the object; its depth
+        changes little while it is lost, unlike the estimate's); then ``probes`` / 2 jittered copies
+        (``jittered``) of the probe with the highest ``gains``. The estimate's own box (at the
+        estimate t (3,) metres) is scored with the first pass. Probes rank by ``gains``: their score
+        less the estimate box's and less the decoys' nearby (``remember``), so that a place that
+        already looked like the object while it was tracked elsewhere (under occlusion the object is
+        hidden and a distractor wins) does not take over; the best ``probes`` / 8 are kept. The best
+        takes over (``elsewhere``) when its gain exceeds ``probe_margin``: phi_cand draws around it,
+        at its depth, with orientations from its crop."""
         assert self.prober is not None
         kind, n = self.config.probe_score, self.config.probes
         height, width = frame.rgb.shape[:2]
@@ -501,33 +524,56 @@ class SearchRegion:
         mean_l = result.sum_L / n_particles if math.isfinite(result.sum_L) else 0.0
         return bool(mean_l < self.config.l_doubt)
 
-    def fitted(
-        self, frame: Frame, region: Region | None, estimate: tuple[np.ndarray, np.ndarray]
-    ) -> Region | None:
-        """``region`` with its box fitted to the frame (module docstring): the estimate R (3,3),
-        t (3,) metres moved along its ray to the factor of ``fit_depths`` whose outline's
-        colour contrast is highest, its projected box marked ``fitted``. As it is when the
-        region is widened, nothing fits (no silhouette, no factors) or the fitted pose does
-        not project."""
+    def outline_fit(
+        self, frame: Frame, estimate: tuple[np.ndarray, np.ndarray]
+    ) -> tuple[float, np.ndarray] | None:
+        """The estimate R (3,3), t (3,) metres moved along its ray to the factor of
+        ``fit_depths`` whose outline's colour contrast is highest: that contrast and the
+        moved t (3,); None when nothing fits (no silhouette, no factors)."""
         factors = np.asarray(self.config.fit_depths, dtype=np.float64)
-        if region is None or region.scale > 1.0 or self.fitter is None or factors.size == 0:
-            return region
+        if self.fitter is None or factors.size == 0:
+            return None
         R, t = estimate
         ts = factors[:, None] * np.asarray(t, dtype=np.float64)[None]
         a = self.fitter.outline_contrast(frame, np.repeat(R[None], factors.size, axis=0), ts)
         if a is None:
+            return None
+        k = int(np.argmax(a))
+        return float(a[k]), ts[k]
+
+    def fitted(
+        self, region: Region | None, R: np.ndarray, fit: tuple[float, np.ndarray] | None,
+        K: np.ndarray,
+    ) -> Region | None:  # fmt: skip
+        """``region`` with its box the model's projected box at the estimate's orientation R
+        (3,3) and the fitted t of ``fit`` (``outline_fit``), marked ``fitted`` (module
+        docstring); as it is without a fit or when the fitted pose does not project."""
+        if region is None or fit is None:
             return region
-        self.calm_outlines = [*self.calm_outlines, float(np.max(a))][-CALM_OUTLINES:]
-        box = projected_box(self.points, R, ts[int(np.argmax(a))], frame.K)
+        box = projected_box(self.points, R, fit[1], K)
         return region if box is None else replace(region, box=box, fitted=True)
+
+    def _remember_outline(self, contrast: float) -> None:
+        """Keep a fitted frame's best outline ``contrast`` among the last ``CALM_OUTLINES``."""
+        self.calm_outlines = [*self.calm_outlines, contrast][-CALM_OUTLINES:]
+
+    def looks_like_object(self, contrast: float) -> bool:
+        """Whether an outline ``contrast`` reaches ``outline_doubt`` (when on) times the median
+        best contrast of the last fitted frames that looked like the object (True while none
+        is remembered, or when the check is off)."""
+        share = self.config.outline_doubt
+        if share is None or not self.calm_outlines:
+            return True
+        return contrast >= share * float(np.median(self.calm_outlines))
 
     def update(self, result: TrackResult, n_particles: int) -> None:
         """Widen or shrink after a frame (module docstring; a frame whose probes found a better
-        place elsewhere counts as doubtful); N = ``n_particles``."""
+        place elsewhere, or whose estimate is off the object by its outline, counts as
+        doubtful); N = ``n_particles``."""
         doubt = self.doubtful(result, n_particles)
         if doubt is None:
             return
-        if not doubt and not self.elsewhere:
+        if not doubt and not self.elsewhere and not self.off_object:
             self.streak = 0
             self.scale = max(self.scale / self.config.widen, 1.0)
             return
@@ -554,13 +600,26 @@ class SearchRegion:
             return frame
         height, width = frame.rgb.shape[:2]
         region = self.region(estimate[0], estimate[1], frame.K, width, height)
+        widened = region is not None and region.scale > 1.0
+        check = self.config.outline_doubt is not None and self.fitter is not None
+        fit = None
+        if region is not None and (check or not widened):
+            fit = self.outline_fit(frame, estimate)
+        if check:
+            self.off_object = fit is not None and not self.looks_like_object(fit[0])
         probing = self.prober is not None and self.config.probes > 0
         probing &= not self.verifies or bool(self.calm_outlines)
-        if region is not None and region.scale > 1.0 and probing:
+        if widened and probing:
             region = self.probe(frame, region, estimate[1], rng)
         else:
-            self._z = max(float(estimate[1][2]), 1e-3)
-            region = self.fitted(frame, region, estimate)
+            if not check:
+                self._z = max(float(estimate[1][2]), 1e-3)
+            if not widened:
+                region = self.fitted(region, estimate[0], fit, frame.K)
+                if fit is not None and not self.off_object:
+                    self._remember_outline(fit[0])
+                    if check:
+                        self._z = max(float(fit[1][2]), 1e-3)
             if region is not None and probing:
                 self.remember(frame, estimate[1], rng)
             else:

@@ -199,6 +199,54 @@ def test_a_calm_region_takes_the_box_of_the_depth_whose_outline_fits_best():
         make_config(None, ["search.fit_depths=[0.0, 1.0]"])
 
 
+class Contrast:
+    """A fitter whose outline contrast is ``value`` at every pose (set by the test)."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def outline_contrast(self, frame, R, t):
+        return np.full(t.shape[0], self.value)
+
+
+@pytest.mark.parametrize("outline_doubt", [0.5, None])
+def test_an_estimate_whose_outline_is_unlike_the_objects_widens_the_window(outline_doubt):
+    """Three calm frames on the object (contrast 0.8), then the estimate jumps to half its depth
+    where the outline fits at 0.2, below ``outline_doubt`` (0.5) times 0.8, with a set that is
+    not in doubt. With the check (the default) those frames are off the object: after
+    ``patience`` of them the window widens, their contrast is not remembered and the depth
+    that sizes the probes stays the object's; once the outline fits again (0.48: 0.6 of the
+    object's, enough), the window shrinks. Without it the window never widens and the lost
+    set becomes the yardstick."""
+    assert SearchConfig().outline_doubt == 0.5
+    cfg = SearchConfig(box_source="estimate", patience=2, widen=2.0, probes=0,
+                       fit_depths=(1.0,), outline_doubt=outline_doubt)  # fmt: skip
+    fitter = Contrast(0.8)
+    search = SearchRegion(cfg, CUBE, None, fitter)
+    frame, rng = Frame(np.zeros((H, W, 3), np.uint8), None, K), np.random.default_rng(0)
+    R = np.eye(3)
+    for _ in range(3):
+        search.frame(frame, (R, np.array([0.0, 0.0, 1.0])), rng)
+        search.update(CALM, 50)
+    assert search.scale == 1.0 and search.calm_outlines == [0.8] * 3
+    fitter.value = 0.2
+    scales = []
+    for _ in range(4):
+        search.frame(frame, (R, np.array([0.0, 0.0, 0.5])), rng)
+        search.update(CALM, 50)
+        scales.append(search.scale)
+    if outline_doubt:
+        assert search.off_object and scales[:3] == [1.0, 2.0, 4.0] and scales[3] > 4.0
+        assert search.calm_outlines == [0.8] * 3 and search._z == 1.0
+        fitter.value = 0.48
+        search.frame(frame, (R, np.array([0.0, 0.0, 0.5])), rng)
+        search.update(CALM, 50)
+        assert not search.off_object and search.scale == pytest.approx(scales[3] / 2)
+    else:
+        assert not search.off_object and scales == [1.0] * 4
+        assert search.calm_outlines == [0.8] * 3 + [0.2] * 4 and search._z == 0.5
+
+
 class PeakProber:
     """A likelihood whose probe score (the cosine kind) peaks at boxes centred on ``centre``
     with side ``side`` pixels: 1 at the peak, falling by one per ``width`` of the side off
