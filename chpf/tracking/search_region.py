@@ -291,7 +291,8 @@ class SearchRegion:
         self._box: Box | None = None  # the last region's box
         self.detector_running = False  # a box came after the first (``auto``)
         self._kept = np.zeros((0, 4))  # the best probes (M,4) of the last probed frame
-        self._z = 1.0  # metres: the estimate's depth at the last frame not probed
+        self._z = 1.0  # metres: the depth that sizes the probes (the estimate's at the last calm
+        # frame; with outline_doubt, the fitted one at the last frame on the object)
         self.elsewhere = False  # the last probes found a better place than the estimate's
         self.decoys = np.zeros((0, 4))  # boxes (M,4) elsewhere that looked like the object ...
         self.decoy_scores = np.zeros(0)  # ... and their scores (M,) at the last calm frame
@@ -342,11 +343,15 @@ class SearchRegion:
         )
         return np.stack([cx - sizes / 2, cy - sizes / 2, sizes, sizes], axis=1)
 
-    def _own_box(self, frame: Frame, t: np.ndarray) -> tuple[np.ndarray, float]:
-        """The square box (1,4) of the object at the estimate t (3,) metres (side fx *
-        box_extent / z around its projection) and that side in pixels."""
+    def _side_at(self, frame: Frame, z: float) -> float:
+        """The object's side in pixels at depth z metres: fx * box_extent / z."""
         assert self.prober is not None
-        side = float(frame.K[0, 0]) * self.prober.box_extent / max(float(t[2]), 1e-3)
+        return float(frame.K[0, 0]) * self.prober.box_extent / z
+
+    def _own_box(self, frame: Frame, t: np.ndarray) -> tuple[np.ndarray, float]:
+        """The square box (1,4) of the object at the estimate t (3,) metres (``_side_at`` its
+        depth, around its projection) and that side in pixels."""
+        side = self._side_at(frame, max(float(t[2]), 1e-3))
         u, v = project_points(np.asarray(t, dtype=np.float64)[None], frame.K)[0]
         return np.array([[u + 0.5 - side / 2, v + 0.5 - side / 2, side, side]]), side
 
@@ -456,9 +461,7 @@ class SearchRegion:
         whole = (0.0, 0.0, float(width), float(height))
         own_box, side = self._own_box(frame, t)
         kept = np.concatenate([self.decoys[:m], self._kept[:m]])
-        grid_side = side  # at the depth where the estimate last looked like the object
-        if self.config.outline_doubt is not None:
-            grid_side = float(frame.K[0, 0]) * self.prober.box_extent / self._z
+        grid_side = self._side_at(frame, self._z)  # the probes' depth (``frame``)
         grid = self.probe_boxes(whole, grid_side, rng, max(n - 2 * len(kept), 1))
         boxes = inside(np.concatenate([kept, jittered(kept, 1, rng), grid]), width, height)
         scores, _, gain = self._scored(frame, boxes, own_box, rng)
@@ -492,10 +495,9 @@ class SearchRegion:
         kind, n = self.config.probe_score, self.config.probes
         height, width = frame.rgb.shape[:2]
         whole = (0.0, 0.0, float(width), float(height))
-        fx, extent = float(frame.K[0, 0]), self.prober.box_extent
         own_box, _ = self._own_box(frame, t)
         kept = np.concatenate([self._kept, jittered(self._kept, 1, rng)])
-        grid = self.probe_boxes(whole, fx * extent / self._z, rng, n - len(kept))
+        grid = self.probe_boxes(whole, self._side_at(frame, self._z), rng, n - len(kept))
         coarse = inside(np.concatenate([kept, grid]), width, height)
         _, own_score, coarse_gains = self._scored(frame, coarse, own_box, rng)
         best = coarse[int(np.argmax(coarse_gains))]
