@@ -428,6 +428,12 @@ class BundleLikelihood:
         uv = project_outline(self.outline, R, t, K, self.z_min)  # (N,M,2)
         return np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)
 
+    def outline_box(self, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> Box:
+        """The box (x, y, w, h) pixels of the model's outline projected at R (3,3), t (3,)
+        metres with intrinsics K (3,3) (chpf.tracking.candidates.OutlineBox)."""
+        x0, y0, x1, y1 = self._projected_boxes(R[None], t[None], K)[0]
+        return (float(x0), float(y0), float(x1 - x0), float(y1 - y0))
+
     def _box_evidence(
         self, frame: Frame, R: np.ndarray, t: np.ndarray
     ) -> tuple[np.ndarray | None, np.ndarray | None]:

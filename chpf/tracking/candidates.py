@@ -24,6 +24,7 @@ read the region's box (the object's projected box at the estimate) as a detectio
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Protocol
 
@@ -31,6 +32,19 @@ import numpy as np
 
 from chpf.geometry import random_rotations
 from chpf.tracking.types import Box, Frame
+
+VISIBLE_PART_SPARE = 0.1
+"""How far (a share of the belief's projected side) a detection of the visible part may lie
+outside the belief's box and still count as inside it, and how near one of its sides it must
+reach (``CandidateSampler.visible_part``)."""
+
+
+Pose = tuple[np.ndarray, np.ndarray]
+"""A pose: R (3,3), t (3,) metres (camera frame)."""
+
+OutlineBox = Callable[[np.ndarray, np.ndarray, np.ndarray], Box | None]
+"""The box (x, y, w, h) pixels of the object's projected outline at R (3,3), t (3,) metres
+with intrinsics K (3,3); None when it has none."""
 
 
 class RotationSource(Protocol):
@@ -49,6 +63,15 @@ def valid_box(box: Box | None) -> Box | None:
     if b.shape[0] != 4 or not np.all(np.isfinite(b)) or b[2] <= 0 or b[3] <= 0:
         return None
     return (float(b[0]), float(b[1]), float(b[2]), float(b[3]))
+
+
+def inner_margins(inner: Box, outer: Box) -> np.ndarray:
+    """How far (4,) pixels box ``inner`` lies inside box ``outer`` (both x, y, w, h) from its
+    left, top, right and bottom side (negative: outside)."""
+    return np.array(
+        [inner[0] - outer[0], inner[1] - outer[1], outer[0] + outer[2] - inner[0] - inner[2],
+         outer[1] + outer[3] - inner[1] - inner[3]]
+    )  # fmt: skip
 
 
 def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -91,7 +114,9 @@ class CandidateSampler:
     use_depth: bool = True
     uv_fraction: float = 1.0
     rotations: RotationSource | None = None  # None: uniform on SO(3)
-    occluded_box: bool = False  # a detection inside the belief's box: draw from the belief's
+    occluded_box: bool = False  # a detection of the visible part: draw from the belief's scale
+    occluded_rule: str = "around"  # visible_part: "inside" | "around"
+    outline_box: OutlineBox | None = None  # the belief's projected outline box (_too_near)
 
     def belief_box(self, t: np.ndarray, K: np.ndarray) -> Box | None:
         """The square box (x, y, w, h) pixels that the object at translation t (3,) metres
@@ -104,32 +129,45 @@ class CandidateSampler:
         v = K[1, 1] * t[1] / t[2] + K[1, 2]
         return (u - side / 2, v - side / 2, side, side)
 
-    def box_for(self, frame: Frame, estimate_t: np.ndarray | None) -> Box | None:
-        """The box phi_cand draws from: the detection, or (``occluded_box``, RGB frames) the
-        belief's box when the detection lies inside it and is smaller by more than 10 %: a
-        detection of the visible part of the believed object, whose own box would put RGB
-        candidates too far away (their z comes from the box's size) and off-centre. With depth
-        the candidates' z is measured at (u, v), so the visible part's box serves: the belief's
-        box would put some of them on the occluder."""
-        det = valid_box(frame.box)
-        if not self.occluded_box or det is None or estimate_t is None or frame.depth is not None:
-            return det
-        bel = self.belief_box(np.asarray(estimate_t, dtype=np.float64), np.asarray(frame.K))
-        if bel is None:
-            return det
-        tol = 0.1 * bel[2]
-        inside = (
-            det[0] >= bel[0] - tol
-            and det[1] >= bel[1] - tol
-            and det[0] + det[2] <= bel[0] + bel[2] + tol
-            and det[1] + det[3] <= bel[1] + bel[3] + tol
-        )
-        return bel if inside and max(det[2], det[3]) < 0.9 * bel[2] else det
+    def box_for(self, frame: Frame, estimate: Pose | None) -> Box | None:
+        """The box phi_cand draws from (``visible_part``'s first box, or the detection)."""
+        found = self.visible_part(frame, estimate)
+        return valid_box(frame.box) if found is None else found[0]
 
-    def _framed(self, frame: Frame, estimate_t: np.ndarray | None) -> Frame:
-        """``frame`` with the box phi_cand draws from (``box_for``) as its box."""
-        box = self.box_for(frame, estimate_t)
-        return frame if box == valid_box(frame.box) else replace(frame, box=box)
+    def visible_part(self, frame: Frame, estimate: Pose | None) -> tuple[Box, Box] | None:
+        """(``occluded_box``, RGB frames) the object's box and the area its centre lies in when
+        the detection is read as the visible part of the believed object, else None. The
+        detection is such a part when it is smaller than the belief's box (side s) by more than
+        10 % and lies inside it (``VISIBLE_PART_SPARE`` of s spare; then both boxes are the
+        belief's). With ``occluded_rule`` "around" it must not say the belief is too near
+        (``_too_near``), and one that pokes out of the
+        box but overlaps it is a part too (the belief is off: then the object is the square of
+        side s centred on the detection, and its centre lies where such a square still holds
+        the whole detection, the area spanned by the squares of side s flush with the
+        detection's sides). A box of
+        the visible part would put RGB candidates too far away (their z comes from the box's
+        size) and off-centre. With depth the candidates' z is measured at (u, v), so the
+        visible part's box serves: the belief's box would put some of them on the occluder."""
+        det = valid_box(frame.box)
+        if not self.occluded_box or det is None or estimate is None or frame.depth is not None:
+            return None
+        K = np.asarray(frame.K, dtype=np.float64)
+        bel = self.belief_box(np.asarray(estimate[1], dtype=np.float64), K)
+        if bel is None or max(det[2], det[3]) >= 0.9 * bel[2]:
+            return None
+        side, tol = bel[2], VISIBLE_PART_SPARE * bel[2]
+        margins = inner_margins(det, bel)
+        if np.all(margins >= -tol):
+            if self.occluded_rule == "inside" or not self._too_near(det, estimate, K):
+                return bel, bel
+            return None
+        if self.occluded_rule == "inside" or np.any(margins >= side):  # apart: no overlap
+            return None
+        cx, cy = det[0] + 0.5 * det[2], det[1] + 0.5 * det[3]
+        obj = (cx - 0.5 * side, cy - 0.5 * side, side, side)
+        x0, y0 = det[0] + det[2] - side, det[1] + det[3] - side
+        area = (x0, y0, 2 * side - det[2], 2 * side - det[3])
+        return obj, area
 
     def _z_rgb_range(self, box: Box, K: np.ndarray) -> tuple[float, float]:
         """The RGB rule's depth range (lo, hi) metres for a box (module docstring)."""
@@ -164,21 +202,44 @@ class CandidateSampler:
             z = np.where(np.isnan(z), np.median(good) if good.size else np.nan, z)
         return z
 
+    def _too_near(self, det: Box, estimate: Pose, K: np.ndarray) -> bool:
+        """Whether the detection det (x, y, w, h) lies inside the box of the belief's projected
+        outline (``outline_box``; else the belief's square box) by more than
+        ``VISIBLE_PART_SPARE`` of its longer side on every side: an occluder hides the object
+        from one or two sides, so what this says is a belief too near, not a visible part."""
+        R, t = (np.asarray(a, dtype=np.float64) for a in estimate)
+        box = self.outline_box(R, t, K) if self.outline_box is not None else None
+        box = box or self.belief_box(t, K)
+        if box is None:
+            return False
+        return bool(inner_margins(det, box).min() > VISIBLE_PART_SPARE * max(box[2], box[3]))
+
+    def _framed(self, frame: Frame, estimate: Pose | None) -> tuple[Frame, Box | None]:
+        """``frame`` with the box phi_cand draws from as its box (the rotation source reads it
+        too), and the area its candidates' centres lie in (None: the box's central part)."""
+        found = self.visible_part(frame, estimate)
+        return (frame, None) if found is None else (replace(frame, box=found[0]), found[1])
+
     def _centres(
-        self, n: int, frame: Frame, rng: np.random.Generator
+        self, n: int, frame: Frame, rng: np.random.Generator, area: Box | None = None
     ) -> tuple[np.ndarray, np.ndarray, Box, Box]:
         """n candidate centres u, v (n,) pixels, the object's box (the depth rule's) and the
-        area they lie in (the depth holes' fallback): from the detection, else from the search
-        region (module docstring); ValueError when the frame has neither."""
+        area they lie in (the depth holes' fallback): from the detection (in ``area`` when
+        given), else from the search region (module docstring); ValueError when the frame has
+        neither."""
         margin = 0.5 * (1.0 - self.uv_fraction)
-        box = valid_box(frame.box)
-        if box is not None:
-            u = box[0] + (margin + self.uv_fraction * rng.random(n)) * box[2]
-            v = box[1] + (margin + self.uv_fraction * rng.random(n)) * box[3]
-            return u, v, box, box
-        if frame.region is None:
-            raise ValueError("CandidateSampler needs a frame with a valid box or a search region")
-        obj, area = frame.region.box, frame.region.area
+        obj = valid_box(frame.box)
+        if obj is not None and area is None:
+            u = obj[0] + (margin + self.uv_fraction * rng.random(n)) * obj[2]
+            v = obj[1] + (margin + self.uv_fraction * rng.random(n)) * obj[3]
+            return u, v, obj, obj
+        if obj is None:
+            if frame.region is None:
+                raise ValueError(
+                    "CandidateSampler needs a frame with a valid box or a search region"
+                )
+            obj, area = frame.region.box, frame.region.area
+        assert area is not None
         bx, by = margin * obj[2], margin * obj[3]
         span_u, span_v = max(area[2] - 2.0 * bx, 0.0), max(area[3] - 2.0 * by, 0.0)
         u = area[0] + min(bx, 0.5 * area[2]) + span_u * rng.random(n)
@@ -190,11 +251,17 @@ class CandidateSampler:
         n: int,
         frame: Frame,
         rng: np.random.Generator,
-        estimate_t: np.ndarray | None = None,
+        estimate: Pose | None = None,
     ) -> np.ndarray:
         """n translations t (n,3) from phi_cand (what PoseRBPF's particles are) in the box of
-        ``box_for(frame, estimate_t)``; the frame needs a valid box or a search region."""
-        u, v, box, area = self._centres(n, self._framed(frame, estimate_t), rng)
+        ``box_for(frame, estimate)``; the frame needs a valid box or a search region."""
+        return self._translations(n, *self._framed(frame, estimate), rng)
+
+    def _translations(
+        self, n: int, frame: Frame, area: Box | None, rng: np.random.Generator
+    ) -> np.ndarray:
+        """n translations t (n,3) from the frame's box (or region), centres in ``area``."""
+        u, v, box, area = self._centres(n, frame, rng, area)
         K = np.asarray(frame.K, dtype=np.float64)
         lo, hi = self._z_rgb_range(box, K)
         z_rgb = rng.uniform(lo, hi, n)
@@ -211,13 +278,14 @@ class CandidateSampler:
         n: int,
         frame: Frame,
         rng: np.random.Generator,
-        estimate_t: np.ndarray | None = None,
+        estimate: Pose | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """n poses (R (n,3,3), t (n,3)) from phi_cand; the frame needs a valid box or a search
         region.
-        ``estimate_t`` (3,): the belief's translation (``box_for``), None when there is none."""
-        frame = self._framed(frame, estimate_t)  # the rotation source reads its box too
-        t = self.translations(n, frame, rng)
+        ``estimate``: the belief's pose (R (3,3), t (3,) metres; ``box_for``), None when there
+        is none."""
+        frame, area = self._framed(frame, estimate)
+        t = self._translations(n, frame, area, rng)
         if self.rotations is None:
             return random_rotations(n, rng), t
         return self.rotations.sample(n, frame, t, rng), t

@@ -65,7 +65,8 @@ class CandidatesConfig(Section):
     depth_offset: tuple[float, float] | None = None  # RGB-D: z = measured + U(a, b); None =
     # (0, diameter / 2)
     depth_window: int = 3
-    occluded_box: bool = True  # a detection inside the belief's box: draw from the belief's
+    occluded_box: bool = True  # RGB: a detection of the visible part: draw at the belief's scale
+    occluded_rule: Literal["inside", "around"] = "around"  # which detections are such a part
 
     def check(self) -> None:
         lo, hi = self.z_range

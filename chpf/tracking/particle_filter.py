@@ -121,8 +121,7 @@ class ParticleFilter(FilterLoop):
         prop = self.strategy.propose(frame, n, self.rng, self.likelihood)
         if prop is not None:
             return prop
-        est_t = None if self.estimate is None else self.estimate[1]
-        return self.candidates.sample(n, frame, self.rng, est_t)
+        return self.candidates.sample(n, frame, self.rng, self.estimate)
 
     def _assign(self, particles: Particles) -> None:
         self.R, self.t = particles

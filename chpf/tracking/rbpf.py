@@ -222,9 +222,8 @@ class RaoBlackwellisedFilter(FilterLoop):
     def _draw(self, frame: Frame, n: int) -> Particles:
         """Translations from phi_cand (in the belief's box when the detection is its visible
         part: ``CandidateSampler.box_for``) with uniform orientation distributions."""
-        est_t = None if self.estimate is None else self.estimate[1]
         return (
-            self.candidates.translations(n, frame, self.rng, est_t),
+            self.candidates.translations(n, frame, self.rng, self.estimate),
             np.full((n, self.k), 1.0 / self.k, np.float32),
         )
 

@@ -155,6 +155,8 @@ class Tracker:
             use_depth=rgbd,
             uv_fraction=cand.box_uv_fraction,
             occluded_box=cand.occluded_box,
+            occluded_rule=cand.occluded_rule,
+            outline_box=self.likelihood.outline_box,
             rotations=None
             if cand.rotations == "uniform"
             else CodebookRotations(

@@ -192,26 +192,85 @@ def test_codebook_rotations_refuse_bad_settings():
         CodebookRotations(_FixedScorer(), c_temperature=0.0)
 
 
+_K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+_BELIEF = (np.eye(3), np.array([0.0, 0.0, 1.0]))  # box_extent 0.2: 60 px square around (160, 120)
+
+
+def _u(t: np.ndarray) -> np.ndarray:
+    return _K[0, 0] * t[:, 0] / t[:, 2] + _K[0, 2]
+
+
 def test_a_detection_inside_the_belief_box_is_read_as_its_visible_part():
-    """occluded_box: a detection inside the belief's projected box and smaller by more than
-    10 % gives the belief's box (candidates at the believed place and scale); a detection as
-    large as the belief, or elsewhere, stays the box; off, or on an RGB-D frame, the detection
-    is always the box."""
-    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
-    sampler = CandidateSampler(box_extent=0.2, occluded_box=True)
-    t = np.array([0.0, 0.0, 1.0])  # belief box: 60 px square centred on (160, 120)
-    bel = sampler.belief_box(t, K)
+    """occluded_rule "inside": a detection inside the belief's projected box and smaller by
+    more than 10 % gives the belief's box (candidates at the believed place and scale); a
+    detection as large as the belief, or elsewhere, stays the box; off, or on an RGB-D frame,
+    the detection is always the box."""
+    sampler = CandidateSampler(box_extent=0.2, occluded_box=True, occluded_rule="inside")
+    bel = sampler.belief_box(_BELIEF[1], _K)
     assert bel == pytest.approx((130.0, 90.0, 60.0, 60.0))
-    half = Frame(np.zeros((240, 320, 3), np.uint8), None, K, (130.0, 100.0, 40.0, 50.0))
-    assert sampler.box_for(half, t) == pytest.approx(bel)
-    whole = Frame(half.rgb, None, K, (131.0, 91.0, 58.0, 58.0))
-    elsewhere = Frame(half.rgb, None, K, (10.0, 10.0, 30.0, 30.0))
-    assert sampler.box_for(whole, t) == whole.box and sampler.box_for(elsewhere, t) == elsewhere.box
+    half = Frame(np.zeros((240, 320, 3), np.uint8), None, _K, (130.0, 100.0, 40.0, 50.0))
+    assert sampler.box_for(half, _BELIEF) == pytest.approx(bel)
+    whole = Frame(half.rgb, None, _K, (131.0, 91.0, 58.0, 58.0))
+    elsewhere = Frame(half.rgb, None, _K, (10.0, 10.0, 30.0, 30.0))
+    assert sampler.box_for(whole, _BELIEF) == whole.box
+    assert sampler.box_for(elsewhere, _BELIEF) == elsewhere.box
     assert sampler.box_for(half, None) == half.box
     off = CandidateSampler(box_extent=0.2)
-    assert off.box_for(half, t) == half.box
-    with_depth = Frame(half.rgb, np.ones((240, 320), np.float32), K, half.box)
-    assert sampler.box_for(with_depth, t) == half.box  # RGB-D: z is measured, the box serves
-    _, ts = sampler.sample(200, half, np.random.default_rng(0), t)
-    u = K[0, 0] * ts[:, 0] / ts[:, 2] + K[0, 2]
+    assert off.box_for(half, _BELIEF) == half.box
+    with_depth = Frame(half.rgb, np.ones((240, 320), np.float32), _K, half.box)
+    assert sampler.box_for(with_depth, _BELIEF) == half.box  # RGB-D: z is measured
+    _, ts = sampler.sample(200, half, np.random.default_rng(0), _BELIEF)
+    u = _u(ts)
     assert u.min() > 130.0 and u.max() < 190.0 and u.mean() == pytest.approx(160.0, abs=3.0)
+    poking_out = Frame(half.rgb, None, _K, (150.0, 80.0, 30.0, 30.0))  # 10 px above the belief
+    assert sampler.box_for(poking_out, _BELIEF) == poking_out.box
+
+
+def test_a_detection_overlapping_the_belief_box_places_the_object_around_it():
+    """occluded_rule "around" (the default): a detection smaller than the belief's box by more
+    than 10 % that overlaps it is the visible part of an object of the belief's size wherever
+    that object holds it: the candidates' depth is the belief's, their centres lie where a
+    square of the belief's side still holds the whole detection, even when the belief is off
+    and the detection pokes out of its box (the "inside" rule drew such candidates from the
+    detection's own box, twice too far away). A detection beside the belief's box stays the
+    box."""
+    sampler = CandidateSampler(box_extent=0.2, occluded_box=True, uv_fraction=0.3)
+    assert sampler.occluded_rule == "around"
+    poking_out = Frame(np.zeros((240, 320, 3), np.uint8), None, _K, (170.0, 80.0, 30.0, 30.0))
+    assert sampler.box_for(poking_out, _BELIEF) == pytest.approx((155.0, 65.0, 60.0, 60.0))
+    _, ts = sampler.sample(400, poking_out, np.random.default_rng(0), _BELIEF)
+    assert ts[:, 2].mean() == pytest.approx(1.05, abs=0.04)  # z_box_factors (0.75, 1.35) x 1 m
+    u = _u(ts)
+    v = _K[1, 1] * ts[:, 1] / ts[:, 2] + _K[1, 2]
+    # a 60 px square holds [170, 200] x [80, 110] when its centre is in [170, 200] x [80, 110]
+    # (170 + 30 - 30 .. 170 + 30); the central 30 % of a detection's box adds 0.15 of the side
+    assert u.min() > 170.0 - 9.5 and u.max() < 200.0 + 9.5
+    assert v.min() > 80.0 - 9.5 and v.max() < 110.0 + 9.5
+    assert np.ptp(u) > 30.0  # spread over the whole span, not only the detection's centre
+    detection_only = CandidateSampler(box_extent=0.2, uv_fraction=0.3).sample(
+        400, poking_out, np.random.default_rng(0), _BELIEF
+    )[1]
+    assert detection_only[:, 2].mean() == pytest.approx(2.1, abs=0.1)  # 30 px: z_box 2 m
+    beside = Frame(poking_out.rgb, None, _K, (20.0, 20.0, 30.0, 30.0))
+    assert sampler.box_for(beside, _BELIEF) == beside.box
+
+
+def test_a_detection_well_inside_the_belief_box_on_every_side_says_the_belief_is_too_near():
+    """occluded_rule "around": an occluder hides the object from one or two sides, so a
+    visible part reaches one side of the object's box; a detection 10 px (a sixth of the side)
+    inside the belief's 60 px box on all four sides is the whole object seen by a belief that
+    is too near, and stays the box (the "inside" rule read it as the visible part and drew the
+    candidates at the belief's too-near depth, which kept the set there)."""
+    framed = Frame(np.zeros((240, 320, 3), np.uint8), None, _K, (140.0, 100.0, 40.0, 40.0))
+    around = CandidateSampler(box_extent=0.2, occluded_box=True)
+    assert around.box_for(framed, _BELIEF) == framed.box
+    inside = CandidateSampler(box_extent=0.2, occluded_box=True, occluded_rule="inside")
+    assert inside.box_for(framed, _BELIEF) == pytest.approx((130.0, 90.0, 60.0, 60.0))
+    flush = Frame(framed.rgb, None, _K, (135.0, 92.0, 40.0, 40.0))  # 2 px from the top
+    assert around.box_for(flush, _BELIEF) == pytest.approx((130.0, 90.0, 60.0, 60.0))
+    # the belief's own outline (a thin object: 36 px wide at this pose) is what the detection
+    # fills; the square of the median extent would call its belief too near
+    thin = CandidateSampler(
+        box_extent=0.2, occluded_box=True, outline_box=lambda R, t, K: (142.0, 95.0, 36.0, 50.0)
+    )
+    assert thin.box_for(framed, _BELIEF) == pytest.approx((130.0, 90.0, 60.0, 60.0))
