@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
 
@@ -115,7 +115,7 @@ class CandidateSampler:
     uv_fraction: float = 1.0
     rotations: RotationSource | None = None  # None: uniform on SO(3)
     occluded_box: bool = False  # a detection of the visible part: draw from the belief's scale
-    occluded_rule: str = "around"  # visible_part: "inside" | "around"
+    occluded_rule: Literal["inside", "around"] = "around"  # visible_part's reading
     outline_box: OutlineBox | None = None  # the belief's projected outline box (_too_near)
 
     def belief_box(self, t: np.ndarray, K: np.ndarray) -> Box | None:
@@ -136,18 +136,19 @@ class CandidateSampler:
 
     def visible_part(self, frame: Frame, estimate: Pose | None) -> tuple[Box, Box] | None:
         """(``occluded_box``, RGB frames) the object's box and the area its centre lies in when
-        the detection is read as the visible part of the believed object, else None. The
-        detection is such a part when it is smaller than the belief's box (side s) by more than
-        10 % and lies inside it (``VISIBLE_PART_SPARE`` of s spare; then both boxes are the
-        belief's). With ``occluded_rule`` "around" it must not say the belief is too near
-        (``_too_near``), and one that pokes out of the
-        box but overlaps it is a part too (the belief is off: then the object is the square of
-        side s centred on the detection, and its centre lies where such a square still holds
-        the whole detection, the area spanned by the squares of side s flush with the
-        detection's sides). A box of
-        the visible part would put RGB candidates too far away (their z comes from the box's
-        size) and off-centre. With depth the candidates' z is measured at (u, v), so the
-        visible part's box serves: the belief's box would put some of them on the occluder."""
+        the detection is read as the visible part of the believed object, else None.
+
+        The detection is such a part when it is smaller than the belief's box (side s) by more
+        than 10 % and lies inside it (``VISIBLE_PART_SPARE`` of s spare; then both boxes are
+        the belief's). With ``occluded_rule`` "around" such a detection must not say that the
+        belief is too near (``_too_near``), and one that pokes out of the box but overlaps it
+        is a part too (the belief is off): then the object is the square of side s centred on
+        the detection, and its centre lies where such a square still holds the whole
+        detection (the area spanned by the squares of side s flush with the detection's
+        sides). A box of the visible part would put RGB candidates too far away (their z comes
+        from the box's size) and off-centre. With depth the candidates' z is measured at (u,
+        v), so the visible part's box serves: the belief's box would put some of them on the
+        occluder."""
         det = valid_box(frame.box)
         if not self.occluded_box or det is None or estimate is None or frame.depth is not None:
             return None
