@@ -35,8 +35,9 @@ from chpf.tracking.types import Box, Frame
 
 VISIBLE_PART_SPARE = 0.1
 """How far (a share of the belief's projected side) a detection of the visible part may lie
-outside the belief's box and still count as inside it, and how near one of its sides it must
-reach (``CandidateSampler.visible_part``)."""
+outside the belief's box and still count as inside it, and how far inside the belief's
+projected outline, on every side, it may lie before it says the belief is too near
+(``CandidateSampler.visible_part``, ``_too_near``)."""
 
 
 Pose = tuple[np.ndarray, np.ndarray]

@@ -220,8 +220,8 @@ class RaoBlackwellisedFilter(FilterLoop):
         return self.t[idx], self.P[idx]
 
     def _draw(self, frame: Frame, n: int) -> Particles:
-        """Translations from phi_cand (in the belief's box when the detection is its visible
-        part: ``CandidateSampler.box_for``) with uniform orientation distributions."""
+        """Translations from phi_cand (at the belief's scale when the detection is its visible
+        part: ``CandidateSampler.visible_part``) with uniform orientation distributions."""
         return (
             self.candidates.translations(n, frame, self.rng, self.estimate),
             np.full((n, self.k), 1.0 / self.k, np.float32),
