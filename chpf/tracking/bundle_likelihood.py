@@ -95,7 +95,7 @@ from chpf.bundle import Bundle
 from chpf.crops import CropSpec, crop_affines, extract_crops
 from chpf.errors import ConfigError
 from chpf.geometry import allocentric_to_egocentric, ray_rotation
-from chpf.tracking.candidates import box_translations, valid_box
+from chpf.tracking.candidates import box_translations, corners, inner_margins, valid_box
 from chpf.tracking.config import BOX_SHAPES, C_MODES, L_FROM_COS
 from chpf.tracking.depth_scores import depth_scores
 from chpf.tracking.model_outline import outline_points, project_outline
@@ -452,10 +452,7 @@ class BundleLikelihood:
             rho = max(sized[2], sized[3]) / side
             c_box = box_counter_evidence(rho, self.c_box, self.c_box_shape)
         if box is not None and edges:
-            x, y, w, h = box
-            edges_out = np.stack(
-                [proj[:, 0] - x, proj[:, 1] - y, x + w - proj[:, 2], y + h - proj[:, 3]], axis=1
-            )
+            edges_out = inner_margins(proj, corners(box))
             out = edges_out.max(axis=1) / side  # the box's edge farthest outside; < 0: inside
             c_edge = np.zeros(t.shape[0])
             if self.c_edge is not None:

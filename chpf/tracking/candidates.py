@@ -66,13 +66,16 @@ def valid_box(box: Box | None) -> Box | None:
     return (float(b[0]), float(b[1]), float(b[2]), float(b[3]))
 
 
-def inner_margins(inner: Box, outer: Box) -> np.ndarray:
-    """How far (4,) pixels box ``inner`` lies inside box ``outer`` (both x, y, w, h) from its
-    left, top, right and bottom side (negative: outside)."""
-    return np.array(
-        [inner[0] - outer[0], inner[1] - outer[1], outer[0] + outer[2] - inner[0] - inner[2],
-         outer[1] + outer[3] - inner[1] - inner[3]]
-    )  # fmt: skip
+def corners(box: Box) -> np.ndarray:
+    """Box (x, y, w, h) pixels as its corners (4,) (x0, y0, x1, y1)."""
+    return np.array([box[0], box[1], box[0] + box[2], box[1] + box[3]])
+
+
+def inner_margins(inner: np.ndarray, outer: np.ndarray) -> np.ndarray:
+    """How far boxes ``inner`` lie inside boxes ``outer``, both (..., 4) corners (x0, y0, x1,
+    y1) pixels: (..., 4) from the left, top, right and bottom side (negative: outside)."""
+    inner, outer = np.asarray(inner), np.asarray(outer)
+    return np.concatenate([inner[..., :2] - outer[..., :2], outer[..., 2:] - inner[..., 2:]], -1)
 
 
 def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -158,7 +161,7 @@ class CandidateSampler:
         if bel is None or max(det[2], det[3]) >= 0.9 * bel[2]:
             return None
         side, tol = bel[2], VISIBLE_PART_SPARE * bel[2]
-        margins = inner_margins(det, bel)
+        margins = inner_margins(corners(det), corners(bel))
         if np.all(margins >= -tol):
             if self.occluded_rule == "inside" or not self._too_near(det, estimate, K):
                 return bel, bel
@@ -214,7 +217,8 @@ class CandidateSampler:
         box = box or self.belief_box(t, K)
         if box is None:
             return False
-        return bool(inner_margins(det, box).min() > VISIBLE_PART_SPARE * max(box[2], box[3]))
+        margins = inner_margins(corners(det), corners(box))
+        return bool(margins.min() > VISIBLE_PART_SPARE * max(box[2], box[3]))
 
     def _framed(self, frame: Frame, estimate: Pose | None) -> tuple[Frame, Box | None]:
         """``frame`` with the box phi_cand draws from as its box (the rotation source reads it

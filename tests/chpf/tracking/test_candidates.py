@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from chpf.geometry import project_points
-from chpf.tracking.candidates import CandidateSampler, valid_box
+from chpf.tracking.candidates import CandidateSampler, corners, inner_margins, valid_box
 from chpf.tracking.types import Frame
 
 K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
@@ -20,6 +20,18 @@ def in_box(uv, box, tol=1e-6):
         & (uv[:, 0] <= box[0] + box[2] + tol)
         & (uv[:, 1] >= box[1] - tol)
         & (uv[:, 1] <= box[1] + box[3] + tol)
+    )
+
+
+def test_inner_margins_measure_each_side_and_broadcast_over_boxes():
+    """Left, top, right, bottom distances of the inner box inside the outer one (negative
+    where it sticks out), for one box or a stack of them against one."""
+    outer = corners(BOX)  # x 100-180, y 50-110
+    assert list(outer) == [100.0, 50.0, 180.0, 110.0]
+    inner = np.array([[110.0, 55.0, 170.0, 100.0], [90.0, 60.0, 190.0, 120.0]])
+    np.testing.assert_allclose(inner_margins(inner[0], outer), [10.0, 5.0, 10.0, 10.0])
+    np.testing.assert_allclose(
+        inner_margins(inner, outer), [[10.0, 5.0, 10.0, 10.0], [-10.0, 10.0, -10.0, -10.0]]
     )
 
 
