@@ -70,8 +70,14 @@ With ``probes`` > 0:
   shows its outline: a probe's gain stands only when its outline contrast
   (chpf.tracking.silhouette; the best over its 3 best codebook orientations at 0.9, 1 and 1.1
   times its depth, and for the best probe of a pass also in its box moved by ``OUTLINE_SHIFT``)
-  reaches ``probe_outline`` times the median best contrast of the last 20 fitted frames (the
-  object as it looked while tracked), else it is lowered to the margin. A method without a
+  reaches ``probe_outline`` times the median of the *yardstick*, else it is lowered to the
+  margin. The yardstick is the object as a probe saw it while tracked: on each of the last 20
+  fitted frames, the same contrast in the object's square box around the fitted estimate
+  (until one is measured, the fitted frames' own best contrast). Like for like: the outline is
+  sharp in orientation (4-5 degrees off, the contrast fell from 0.82 to about 0.5), a probe's
+  codebook orientations lie several degrees off, and against the estimate's refined contrast
+  probes on the object failed the check for 20 frames. A probe that passes moves to the box
+  where its outline fitted best, and the search goes on from there. A method without a
   silhouette (PoseRBPF, CH-RBPF: no fitted frame) has no such yardstick and does not probe
   while the check is on (``probe_outline: 0`` probes without it).
 
@@ -133,7 +139,7 @@ OUTLINE_SHIFT = 0.1
 side (a probe lies within about 0.1 of a side of the object, and a box's outline is sharp;
 shifting every checked probe let distractors through too: docs/own-recording.md)."""
 CALM_OUTLINES = 20
-"""Fitted frames whose best outline contrast make the yardstick of ``probe_outline``."""
+"""Fitted frames whose outline contrasts make the yardstick of ``probe_outline``."""
 DECOY_AWAY = 1.5
 """A decoy (``SearchRegion.remember``) lies more than this many object sides from the
 estimate (nearer, the scores see the object's own shoulders)."""
@@ -160,7 +166,8 @@ class SearchConfig(Section):
     must score above the estimate's own box and above what was remembered at its place to take
     over (``SearchRegion.probe``); calm_probes, the probes scored per calm frame to remember
     the places elsewhere that look like the object (decoys; 0: none remembered); probe_outline,
-    the share of the tracked object's outline contrast a probe's must reach to take over
+    the share of the tracked object's outline contrast (as a probe saw it) a probe's must
+    reach to take over
     (``SearchRegion.outlined``; 0: not checked, and every method probes); fit_depths,
     the factors of the estimate's depth among which a calm region's box is fitted to the
     outline's colour contrast (``SearchRegion.fitted``; empty: not fitted); outline_doubt, the
@@ -297,6 +304,8 @@ class SearchRegion:
         self.decoys = np.zeros((0, 4))  # boxes (M,4) elsewhere that looked like the object ...
         self.decoy_scores = np.zeros(0)  # ... and their scores (M,) at the last calm frame
         self.calm_outlines: list[float] = []  # the best contrast of the last fitted frames
+        self.probe_yardstick: list[float] = []  # a probe's contrast at the estimate's box on
+        # the last fitted frames (``_remember_probe_outline``)
         self.off_object = False  # the estimate's outline did not look like the object's
 
     @property
@@ -366,10 +375,10 @@ class SearchRegion:
 
     def _scored(
         self, frame: Frame, boxes: np.ndarray, own_box: np.ndarray, rng: np.random.Generator
-    ) -> tuple[np.ndarray, float, np.ndarray]:
+    ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
         """Probe boxes (M,4) scored in one pass with the estimate's own box (1,4) and its
         jittered copies (``_own_boxes``): their scores (M,), the estimate's score (the best of
-        its boxes) and their ``gains`` (M,)."""
+        its boxes), their ``gains`` (M,) and the boxes (M,4) as ``gains`` moved them."""
         assert self.prober is not None
         height, width = frame.rgb.shape[:2]
         own = self._own_boxes(own_box, rng, width, height)
@@ -377,15 +386,16 @@ class SearchRegion:
             self.prober, frame, np.concatenate([own, boxes]), self.config.probe_score
         )
         own_score, scores = float(both[: len(own)].max()), both[len(own) :]
-        return scores, own_score, self.gains(frame, boxes, scores, own_box, own_score)
+        return scores, own_score, *self.gains(frame, boxes, scores, own_box, own_score)
 
     def gains(self, frame: Frame, boxes: np.ndarray, scores: np.ndarray, own_box: np.ndarray,
-              own_score: float) -> np.ndarray:  # fmt: skip
+              own_score: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """How much each probe (M,4) with ``scores`` (M,) beats what is known at its place: its
         score less the estimate's own box's ``own_score`` and less the remembered score of
         any decoy whose centre lies within half its side of the probe's; -inf for a probe
         within half a side of the estimate's box (not elsewhere); at most ``probe_margin`` for
-        a probe whose outline does not look like the object's (``outlined``)."""
+        a probe whose outline does not look like the object's. Returns the gains (M,) and the
+        boxes (M,4) as ``outlined`` moved them."""
         centres = boxes[:, :2] + boxes[:, 2:] / 2
         own_c, own_side = own_box[0, :2] + own_box[0, 2:] / 2, float(own_box[0, 2])
         bar = np.full(len(boxes), float(own_score))
@@ -402,29 +412,44 @@ class SearchRegion:
         without a silhouette (no ``calm_outlines`` after a fitted frame) does not probe."""
         return self.config.probe_outline > 0.0
 
-    def outlined(self, frame: Frame, boxes: np.ndarray, gain: np.ndarray) -> np.ndarray:
+    def outlined(
+        self, frame: Frame, boxes: np.ndarray, gain: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``gain`` (M,) of probes (M,4) with each of the ``OUTLINE_CHECKS`` highest above
         ``probe_margin`` kept only when its ``outline_contrast`` reaches ``probe_outline``
-        times the median best contrast of the last fitted frames (the object as it looked
-        while tracked), else lowered to the margin; the others above the margin are lowered
-        to it. Both networks score a refined probe on textured background or a distractor
-        about as well as the object; the outline tells a whole object from them."""
+        times the median of the yardstick (``probe_yardstick``: the object as a probe saw it
+        while tracked; ``calm_outlines`` until one is measured), else lowered to the margin;
+        the others above the margin are lowered to it. Both networks score a refined probe on
+        textured background or a distractor about as well as the object; the outline tells a
+        whole object from them. Returns the gains and the boxes (M,4), a probe that passed
+        moved to the box where its outline fitted best (the search goes on from there)."""
         over = np.flatnonzero(gain > self.config.probe_margin)
-        if not self.verifies or over.size == 0 or not self.calm_outlines:
-            return gain
+        yardstick = self.probe_yardstick or self.calm_outlines
+        if not self.verifies or over.size == 0 or not yardstick:
+            return gain, boxes
         order = over[np.argsort(-gain[over])]
-        bar = self.config.probe_outline * float(np.median(self.calm_outlines))
-        gain = gain.copy()
+        bar = self.config.probe_outline * float(np.median(yardstick))
+        gain, boxes = gain.copy(), boxes.copy()
         for k, i in enumerate(order):
-            if k >= OUTLINE_CHECKS or self.outline_contrast(frame, boxes[i], k == 0) < bar:
+            contrast, fitted_box = (
+                self.outline_contrast(frame, boxes[i], k == 0)
+                if k < OUTLINE_CHECKS
+                else (-np.inf, boxes[i])
+            )
+            if contrast < bar:
                 gain[i] = self.config.probe_margin
-        return gain
+            else:
+                boxes[i] = fitted_box
+        return gain, boxes
 
-    def outline_contrast(self, frame: Frame, box: np.ndarray, shifted: bool = False) -> float:
+    def outline_contrast(
+        self, frame: Frame, box: np.ndarray, shifted: bool = False
+    ) -> tuple[float, np.ndarray]:
         """The best outline contrast (chpf.tracking.silhouette) of the object in the probe
         ``box`` (4,) pixels: at the ``OUTLINE_ENTRIES`` codebook orientations that best match
         its crop, at ``OUTLINE_DEPTHS`` times its depth; ``shifted``: also in the box moved
-        by ``OUTLINE_SHIFT`` of its side in u, v or both (9 boxes)."""
+        by ``OUTLINE_SHIFT`` of its side in u, v or both (9 boxes). Returns that contrast and
+        the box (4,) where it was found."""
         assert self.prober is not None and self.fitter is not None
         boxes = np.array(box, dtype=np.float64)[None]
         if shifted:
@@ -438,7 +463,11 @@ class SearchRegion:
         ts = factors[:, None, None, None] * np.broadcast_to(t[:, None], (*R.shape[:2], 3))
         Rs = np.broadcast_to(R, (factors.size, *R.shape)).reshape(-1, 3, 3)
         a = self.fitter.outline_contrast(frame, Rs, ts.reshape(-1, 3))
-        return 0.0 if a is None else float(np.max(a))
+        if a is None:
+            return 0.0, boxes[0]
+        per_box = np.asarray(a).reshape(factors.size, *R.shape[:2]).max(axis=(0, 2))  # (M,)
+        k = int(np.argmax(per_box))
+        return float(per_box[k]), boxes[k]
 
     def remember(self, frame: Frame, t: np.ndarray, rng: np.random.Generator) -> None:
         """A calm frame's scan: ``calm_probes`` boxes over the whole image at the estimate's side (t
@@ -464,7 +493,7 @@ class SearchRegion:
         grid_side = self._side_at(frame, self._z)  # the probes' depth (``frame``)
         grid = self.probe_boxes(whole, grid_side, rng, max(n - 2 * len(kept), 1))
         boxes = inside(np.concatenate([kept, jittered(kept, 1, rng), grid]), width, height)
-        scores, _, gain = self._scored(frame, boxes, own_box, rng)
+        scores, _, gain, boxes = self._scored(frame, boxes, own_box, rng)
         found = gain > self.config.probe_margin
         self.elsewhere = bool(found.any())
         self._kept = boxes[found][np.argsort(-gain[found])[:m]]
@@ -499,12 +528,12 @@ class SearchRegion:
         kept = np.concatenate([self._kept, jittered(self._kept, 1, rng)])
         grid = self.probe_boxes(whole, self._side_at(frame, self._z), rng, n - len(kept))
         coarse = inside(np.concatenate([kept, grid]), width, height)
-        _, own_score, coarse_gains = self._scored(frame, coarse, own_box, rng)
+        _, own_score, coarse_gains, coarse = self._scored(frame, coarse, own_box, rng)
         best = coarse[int(np.argmax(coarse_gains))]
         fine = inside(jittered(best[None], max(n // 2, 1), rng), width, height)
         fine_scores = probe_scores(self.prober, frame, fine, kind)
+        fine_gains, fine = self.gains(frame, fine, fine_scores, own_box, own_score)
         boxes = np.concatenate([coarse, fine])
-        fine_gains = self.gains(frame, fine, fine_scores, own_box, own_score)
         gain = np.concatenate([coarse_gains, fine_gains])
         order = np.argsort(-gain)
         self._kept = boxes[order[: max(n // 8, 1)]]
@@ -558,6 +587,14 @@ class SearchRegion:
     def _remember_outline(self, contrast: float) -> None:
         """Keep a fitted frame's best outline ``contrast`` among the last ``CALM_OUTLINES``."""
         self.calm_outlines = [*self.calm_outlines, contrast][-CALM_OUTLINES:]
+
+    def _remember_probe_outline(self, frame: Frame, t: np.ndarray) -> None:
+        """Keep, among the last ``CALM_OUTLINES``, the ``outline_contrast`` that a probe at the
+        object's square box around the fitted estimate t (3,) metres reaches: at codebook
+        orientations, not the estimate's refined one (the probes' yardstick, like for like)."""
+        own_box, _ = self._own_box(frame, t)
+        contrast, _ = self.outline_contrast(frame, own_box[0])
+        self.probe_yardstick = [*self.probe_yardstick, contrast][-CALM_OUTLINES:]
 
     def looks_like_object(self, contrast: float) -> bool:
         """Whether an outline ``contrast`` reaches ``outline_doubt`` (when on) times the median
@@ -620,6 +657,8 @@ class SearchRegion:
                 region = self.fitted(region, estimate[0], fit, frame.K)
                 if fit is not None and not self.off_object:
                     self._remember_outline(fit[0])
+                    if probing and self.verifies:
+                        self._remember_probe_outline(frame, fit[1])
                     if check:
                         self._z = max(float(fit[1][2]), 1e-3)
             if region is not None and probing:

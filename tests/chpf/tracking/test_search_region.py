@@ -489,8 +489,78 @@ def test_the_best_checked_probe_is_also_scored_a_tenth_of_its_side_off():
     search = SearchRegion(SearchConfig(), CUBE, Peaks([]), Outline((100.0, 100.0)))
     frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
     box = np.array([62.0 - 0.5, 50.0 - 0.5, 100.0, 100.0])  # centred 12 px right of it
-    assert search.outline_contrast(frame, box) == pytest.approx(0.1)
-    assert search.outline_contrast(frame, box, shifted=True) == pytest.approx(0.9)
+    assert search.outline_contrast(frame, box)[0] == pytest.approx(0.1)
+    contrast, fitted = search.outline_contrast(frame, box, shifted=True)
+    assert contrast == pytest.approx(0.9)
+    assert fitted == pytest.approx(box - [10.0, 0.0, 0.0, 0.0])  # the box where it fitted
+
+
+def test_a_probe_that_passes_moves_to_the_box_where_its_outline_fitted():
+    """The best checked probe whose outline passes comes back moved to the shifted box where
+    its outline fitted best (the search goes on from there); a probe below the bar keeps its
+    box and is lowered to the margin; the boxes passed in are not changed."""
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
+    box = np.array([62.0 - 0.5, 50.0 - 0.5, 100.0, 100.0])  # centred 12 px right of it
+    search = SearchRegion(SearchConfig(), CUBE, Peaks([]), Outline((100.0, 100.0)))
+    search.calm_outlines = [0.9]
+    boxes = np.stack([box, box + np.array([150.0, 0.0, 0.0, 0.0])])  # fits nowhere
+    gain, moved = search.outlined(frame, boxes, np.array([2.0, 1.0]))
+    assert gain[0] == 2.0 and gain[1] == search.config.probe_margin
+    assert moved[0] == pytest.approx(box - [10.0, 0.0, 0.0, 0.0])
+    assert moved[1] == pytest.approx(boxes[1]) and boxes[0] == pytest.approx(box)
+
+
+class RefinedOutline:
+    """A silhouette whose outline contrast is 0.9 at the identity orientation (the tracked
+    estimate's refined one), 0.45 at any other (a codebook orientation seen off the optical
+    axis: a few degrees off) and ``floor`` near ``distractor``."""
+
+    def __init__(self, distractor, floor=0.1):
+        self.distractor, self.floor = np.array(distractor), floor
+
+    def outline_contrast(self, frame, R, t):
+        uv = t[:, :2] / t[:, 2:] * K[0, 0] + K[:2, 2]
+        refined = np.abs(R - np.eye(3)).max(axis=(1, 2)) < 1e-6
+        a = np.where(refined, 0.9, 0.45)
+        return np.where(np.linalg.norm(uv + 0.5 - self.distractor, axis=1) < 20.0, self.floor, a)
+
+
+def test_the_probes_yardstick_is_a_probes_outline_at_the_tracked_estimate():
+    """A probe's outline is scored at codebook orientations, the tracked estimate's at its
+    refined one, which fits better (here 0.45 against 0.9). The calm frames measure the
+    outline a probe at the estimate's box reaches, and the probes' bar is that share of it:
+    a probe on the object after a jump takes over, one on a distractor does not. Against the
+    estimate's own contrast (the yardstick emptied) the object's probe cannot pass."""
+    est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # the estimate's box around (130, 135)
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
+    distractor, jumped = ((250.0, 60.0), 36.0, 1.6), ((60.0, 60.0), 36.0, 1.5)
+    cfg = SearchConfig(
+        patience=1, widen=2.0, probe_score="cosine", probe_sizes=1.5, probe_margin=0.2,
+        calm_probes=0,
+    )  # fmt: skip
+
+    def run(peaks, forget):
+        search = SearchRegion(cfg, CUBE, Peaks([]), RefinedOutline(distractor[0]))
+        rng = np.random.default_rng(0)
+        for _ in range(3):  # calm, fitted frames on the object
+            assert search.frame(frame, est, rng).region.scale == 1.0
+        assert search.calm_outlines == [0.9] * 3 and search.probe_yardstick == [0.45] * 2
+        if forget:
+            search.probe_yardstick = []
+        search.prober = Peaks(peaks)
+        for _ in range(8):
+            wide = _widened(search, frame, est, rng)
+            if search.elsewhere:
+                break
+        return search, wide
+
+    search, wide = run([distractor, jumped], forget=False)
+    assert search.elsewhere and wide.probed
+    assert np.hypot(wide.box[0] + wide.box[2] / 2 - 60.0, wide.box[1] + wide.box[3] / 2 - 60.0) < 18
+    search, wide = run([distractor], forget=False)
+    assert not search.elsewhere and not wide.probed
+    search, wide = run([distractor, jumped], forget=True)
+    assert not search.elsewhere and not wide.probed
 
 
 def test_a_method_without_a_silhouette_does_not_probe_while_probes_are_checked():
