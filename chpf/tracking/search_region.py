@@ -596,6 +596,13 @@ class SearchRegion:
         contrast, _ = self.outline_contrast(frame, own_box[0])
         self.probe_yardstick = [*self.probe_yardstick, contrast][-CALM_OUTLINES:]
 
+    def clearly_visible(self, contrast: float) -> bool:
+        """Whether a fitted frame's outline ``contrast`` reaches the median of the last fitted
+        frames (this one included): the object at least as clear as usual, so the frame may
+        feed the probes' yardstick. A slow occluder lowers the contrast without taking the
+        estimate off the object (``looks_like_object``), and would sink the bar with it."""
+        return bool(self.calm_outlines) and contrast >= float(np.median(self.calm_outlines))
+
     def looks_like_object(self, contrast: float) -> bool:
         """Whether an outline ``contrast`` reaches ``outline_doubt`` (when on) times the median
         best contrast of the last fitted frames that looked like the object (True while none
@@ -657,7 +664,7 @@ class SearchRegion:
                 region = self.fitted(region, estimate[0], fit, frame.K)
                 if fit is not None and not self.off_object:
                     self._remember_outline(fit[0])
-                    if probing and self.verifies:
+                    if probing and self.verifies and self.clearly_visible(fit[0]):
                         self._remember_probe_outline(frame, fit[1])
                     if check:
                         self._z = max(float(fit[1][2]), 1e-3)

@@ -563,6 +563,26 @@ def test_the_probes_yardstick_is_a_probes_outline_at_the_tracked_estimate():
     assert not search.elsewhere and not wide.probed
 
 
+def test_a_frame_dimmed_by_a_slow_occluder_does_not_lower_the_probes_yardstick():
+    """A fitted frame whose outline is fainter than usual (an occluder sliding in) but still
+    the object's is remembered as the object, but does not feed the probes' yardstick: the bar
+    would sink with the occluder and let background through."""
+    est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))
+    frame = Frame(np.zeros((H, W, 3), np.uint8), None, K)
+    cfg = SearchConfig(calm_probes=0)
+    search = SearchRegion(cfg, CUBE, Peaks([]), RefinedOutline((0.0, 0.0)))
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        search.frame(frame, est, rng)
+    assert search.probe_yardstick == [0.45] * 2
+    search.fitter = RefinedOutline((0.0, 0.0))
+    search.fitter.outline_contrast = lambda f, R, t: 0.6 * np.ones(len(t))  # dimmed, same pose
+    search.frame(frame, est, rng)
+    assert search.calm_outlines[-1] == 0.6 and not search.off_object
+    assert search.probe_yardstick == [0.45] * 2
+    assert search.clearly_visible(0.9) and not search.clearly_visible(0.6)
+
+
 def test_a_method_without_a_silhouette_does_not_probe_while_probes_are_checked():
     """PoseRBPF and CH-RBPF have no silhouette (no fitted frame, no yardstick): with the
     outline check on they search as with ``probes: 0`` (the whole window, no probe scored)."""
