@@ -72,8 +72,9 @@ With ``probes`` > 0:
   times its depth, and for the best probe of a pass also in its box moved by ``OUTLINE_SHIFT``)
   reaches ``probe_outline`` times the median of the *yardstick*, else it is lowered to the
   margin. The yardstick is the object as a probe saw it while tracked: on each of the last 20
-  fitted frames, the same contrast in the object's square box around the fitted estimate
-  (until one is measured, the fitted frames' own best contrast). Like for like: the outline is
+  fitted frames that showed it at least as clearly as usual (``clearly_visible``: a slow
+  occluder otherwise sank the bar), the same contrast in the object's square box around the
+  fitted estimate (until one is measured, the fitted frames' own best contrast). Like for like: the outline is
   sharp in orientation (4-5 degrees off, the contrast fell from 0.82 to about 0.5), a probe's
   codebook orientations lie several degrees off, and against the estimate's refined contrast
   probes on the object failed the check for 20 frames. A probe that passes moves to the box
