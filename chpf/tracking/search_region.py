@@ -74,10 +74,11 @@ With ``probes`` > 0:
   margin. The yardstick is the object as a probe saw it while tracked: on each of the last 20
   fitted frames that showed it at least as clearly as usual (``clearly_visible``: a slow
   occluder otherwise sank the bar), the same contrast in the object's square box around the
-  fitted estimate (until one is measured, the fitted frames' own best contrast). Like for like: the outline is
-  sharp in orientation (4-5 degrees off, the contrast fell from 0.82 to about 0.5), a probe's
-  codebook orientations lie several degrees off, and against the estimate's refined contrast
-  probes on the object failed the check for 20 frames. A probe that passes moves to the box
+  fitted estimate (until one is measured, the fitted frames' own best contrast). Like for
+  like: the outline is sharp in orientation (4-5 degrees off, the contrast fell from 0.82 to
+  about 0.5), a probe's codebook orientations lie several degrees off, and against the
+  estimate's refined contrast probes on the object failed the check for 20 frames. A probe
+  that passes moves to the box
   where its outline fitted best, and the search goes on from there. A method without a
   silhouette (PoseRBPF, CH-RBPF: no fitted frame) has no such yardstick and does not probe
   while the check is on (``probe_outline: 0`` probes without it).
