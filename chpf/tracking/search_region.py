@@ -78,8 +78,8 @@ With ``probes`` > 0:
   like: the outline is sharp in orientation (4-5 degrees off, the contrast fell from 0.82 to
   about 0.5), a probe's codebook orientations lie several degrees off, and against the
   estimate's refined contrast probes on the object failed the check for 20 frames. A probe
-  that passes moves to the box
-  where its outline fitted best, and the search goes on from there. A method without a
+  that passes moves to the box where its outline fitted best, and the search goes on from
+  there. A method without a
   silhouette (PoseRBPF, CH-RBPF: no fitted frame) has no such yardstick and does not probe
   while the check is on (``probe_outline: 0`` probes without it).
 
@@ -169,8 +169,8 @@ class SearchConfig(Section):
     over (``SearchRegion.probe``); calm_probes, the probes scored per calm frame to remember
     the places elsewhere that look like the object (decoys; 0: none remembered); probe_outline,
     the share of the tracked object's outline contrast (as a probe saw it) a probe's must
-    reach to take over
-    (``SearchRegion.outlined``; 0: not checked, and every method probes); fit_depths,
+    reach to take over (``SearchRegion.outlined``; 0: not checked, and every method probes);
+    fit_depths,
     the factors of the estimate's depth among which a calm region's box is fitted to the
     outline's colour contrast (``SearchRegion.fitted``; empty: not fitted); outline_doubt, the
     share of the object's outline contrast below which a fitted estimate is off the object:
@@ -307,7 +307,7 @@ class SearchRegion:
         self.decoy_scores = np.zeros(0)  # ... and their scores (M,) at the last calm frame
         self.calm_outlines: list[float] = []  # the best contrast of the last fitted frames
         self.probe_yardstick: list[float] = []  # a probe's contrast at the estimate's box on
-        # the last fitted frames (``_remember_probe_outline``)
+        # the last clear fitted frames (``_remember_probe_outline``)
         self.off_object = False  # the estimate's outline did not look like the object's
 
     @property
