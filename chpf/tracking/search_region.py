@@ -433,15 +433,12 @@ class SearchRegion:
         bar = self.config.probe_outline * float(np.median(yardstick))
         gain, boxes = gain.copy(), boxes.copy()
         for k, i in enumerate(order):
-            contrast, fitted_box = (
-                self.outline_contrast(frame, boxes[i], k == 0)
-                if k < OUTLINE_CHECKS
-                else (-np.inf, boxes[i])
-            )
-            if contrast < bar:
-                gain[i] = self.config.probe_margin
-            else:
-                boxes[i] = fitted_box
+            if k < OUTLINE_CHECKS:
+                contrast, fitted_box = self.outline_contrast(frame, boxes[i], k == 0)
+                if contrast >= bar:
+                    boxes[i] = fitted_box
+                    continue
+            gain[i] = self.config.probe_margin
         return gain, boxes
 
     def outline_contrast(
