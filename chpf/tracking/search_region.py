@@ -120,6 +120,8 @@ import numpy as np
 
 from chpf.config_schema import Invalid, Section, setting
 from chpf.geometry import project_points
+from chpf.tracking.colour_model import ColourModel
+from chpf.tracking.model_outline import project_outline
 from chpf.tracking.probe_scores import Probed, ProbeScoreName, probe_poses, probe_scores
 from chpf.tracking.types import Box, Frame, Region, TrackResult
 
@@ -175,7 +177,9 @@ class SearchConfig(Section):
     outline's colour contrast (``SearchRegion.fitted``; empty: not fitted); outline_doubt, the
     share of the object's outline contrast below which a fitted estimate is off the object:
     it counts as doubtful, is not remembered and does not size the probes (module docstring;
-    None: off)."""
+    None: off); colour_weight, decades added to a probe's score per unit of its box's colour
+    contrast under the colours learned while the object was tracked
+    (chpf.tracking.colour_model; 0: off)."""
 
     box_source: BoxSourceName = "auto"
     margin: float = setting(0.2, ge=0.0)
@@ -191,6 +195,7 @@ class SearchConfig(Section):
     probe_outline: float = setting(0.7, ge=0.0, le=1.0)
     fit_depths: tuple[float, ...] = (0.9, 0.95, 1.0, 1.05, 1.1)
     outline_doubt: float | None = setting(0.5, gt=0.0, le=1.0)
+    colour_weight: float = setting(3.0, ge=0.0)
 
     def check(self) -> None:
         if any(not f > 0 for f in self.fit_depths):
@@ -290,6 +295,7 @@ class SearchRegion:
         self._points = points
         self.prober = prober
         self.fitter = fitter
+        self.colours = ColourModel()
         self.reset()
 
     def reset(self) -> None:
@@ -309,6 +315,7 @@ class SearchRegion:
         self.probe_yardstick: list[float] = []  # a probe's contrast at the estimate's box on
         # the last clear fitted frames (``_remember_probe_outline``)
         self.off_object = False  # the estimate's outline did not look like the object's
+        self.colours.reset()
 
     @property
     def points(self) -> np.ndarray:
@@ -359,6 +366,26 @@ class SearchRegion:
         assert self.prober is not None
         return float(frame.K[0, 0]) * self.prober.box_extent / z
 
+    def probe_scores(self, frame: Frame, boxes: np.ndarray) -> np.ndarray:
+        """Scores (M,) of probe boxes (M,4) (x, y, w, h) pixels by ``probe_score``, plus
+        ``colour_weight`` times their colour contrast once colours are learned
+        (``teach_colours``)."""
+        assert self.prober is not None
+        scores = probe_scores(self.prober, frame, boxes, self.config.probe_score)
+        weight = self.config.colour_weight
+        if weight > 0.0 and self.colours.ready:
+            scores = scores + weight * self.colours.box_contrast(frame.rgb, boxes)
+        return scores
+
+    def teach_colours(self, frame: Frame, R: np.ndarray, t: np.ndarray) -> None:
+        """Learn the object's and the background's colours from ``frame`` with the object at
+        R (3,3), t (3,) metres (a fitted pose that shows it clearly; chpf.tracking.colour_model).
+        """
+        if self.config.colour_weight <= 0.0:
+            return
+        uv = project_outline(self.points, R[None], np.asarray(t)[None], frame.K, 1e-3)[0]
+        self.colours.teach(frame.rgb, uv)
+
     def _own_box(self, frame: Frame, t: np.ndarray) -> tuple[np.ndarray, float]:
         """The square box (1,4) of the object at the estimate t (3,) metres (``_side_at`` its
         depth, around its projection) and that side in pixels."""
@@ -384,9 +411,7 @@ class SearchRegion:
         assert self.prober is not None
         height, width = frame.rgb.shape[:2]
         own = self._own_boxes(own_box, rng, width, height)
-        both = probe_scores(
-            self.prober, frame, np.concatenate([own, boxes]), self.config.probe_score
-        )
+        both = self.probe_scores(frame, np.concatenate([own, boxes]))
         own_score, scores = float(both[: len(own)].max()), both[len(own) :]
         return scores, own_score, *self.gains(frame, boxes, scores, own_box, own_score)
 
@@ -520,7 +545,7 @@ class SearchRegion:
         takes over (``elsewhere``) when its gain exceeds ``probe_margin``: phi_cand draws around it,
         at its depth, with orientations from its crop."""
         assert self.prober is not None
-        kind, n = self.config.probe_score, self.config.probes
+        n = self.config.probes
         height, width = frame.rgb.shape[:2]
         whole = (0.0, 0.0, float(width), float(height))
         own_box, _ = self._own_box(frame, t)
@@ -530,7 +555,7 @@ class SearchRegion:
         _, own_score, coarse_gains, coarse = self._scored(frame, coarse, own_box, rng)
         best = coarse[int(np.argmax(coarse_gains))]
         fine = inside(jittered(best[None], max(n // 2, 1), rng), width, height)
-        fine_scores = probe_scores(self.prober, frame, fine, kind)
+        fine_scores = self.probe_scores(frame, fine)
         fine_gains, fine = self.gains(frame, fine, fine_scores, own_box, own_score)
         boxes = np.concatenate([coarse, fine])
         gain = np.concatenate([coarse_gains, fine_gains])
@@ -665,6 +690,7 @@ class SearchRegion:
                     self._remember_outline(fit[0])
                     if probing and self.verifies and self.clearly_visible(fit[0]):
                         self._remember_probe_outline(frame, fit[1])
+                        self.teach_colours(frame, estimate[0], fit[1])
                     if check:
                         self._z = max(float(fit[1][2]), 1e-3)
             if region is not None and probing:

@@ -583,6 +583,47 @@ def test_a_frame_dimmed_by_a_slow_occluder_does_not_lower_the_probes_yardstick()
     assert search.clearly_visible(0.9) and not search.clearly_visible(0.6)
 
 
+def _red_square(cx: float, cy: float, side: int = 30) -> np.ndarray:
+    """A frame: a red square of ``side`` pixels centred on (cx, cy) on teal and grey stripes."""
+    rgb = np.zeros((H, W, 3), np.uint8)
+    rgb[:] = (20, 120, 120)
+    rgb[:, ::8] = (90, 90, 90)
+    x, y = round(cx - side / 2), round(cy - side / 2)
+    rgb[y : y + side, x : x + side] = (200, 30, 30)
+    return rgb
+
+
+@pytest.mark.parametrize("colour_weight", [0.0, 3.0])
+def test_networks_blind_to_the_object_re_find_it_by_the_colours_learned_while_tracking(
+    colour_weight,
+):
+    """Where the networks score the object no better than background (a dark scene, a
+    grazing view), the colours learned on the clear fitted frames find it after a jump: its
+    box's colour contrast lifts its probe over the estimate's box and the outline passes."""
+    est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))  # the estimate's box around (130, 135)
+    cfg = SearchConfig(
+        patience=1, widen=2.0, probe_score="cosine", probe_sizes=1.5, probe_margin=0.2,
+        calm_probes=0, colour_weight=colour_weight,
+    )  # fmt: skip
+    assert SearchConfig().colour_weight == 3.0
+    search = SearchRegion(cfg, CUBE, Peaks([]), Outline((130.0, 135.0), floor=0.9))
+    rng = np.random.default_rng(0)
+    tracked = Frame(_red_square(130.0, 135.0), None, K)
+    for _ in range(3):  # calm, fitted frames on the object: its colours are learned
+        search.frame(tracked, est, rng)
+    assert search.colours.ready == (colour_weight > 0)
+    jumped = Frame(_red_square(250.0, 60.0), None, K)
+    for _ in range(8):
+        wide = _widened(search, jumped, est, rng)
+        if search.elsewhere:
+            break
+    if colour_weight == 0.0:  # flat scores: nothing beats the estimate's box
+        assert not search.elsewhere and not wide.probed
+        return
+    assert search.elsewhere and wide.probed  # its box's centre on the 30 px object:
+    assert np.hypot(wide.box[0] + wide.box[2] / 2 - 250.0, wide.box[1] + wide.box[3] / 2 - 60.0) < 22
+
+
 def test_a_method_without_a_silhouette_does_not_probe_while_probes_are_checked():
     """PoseRBPF and CH-RBPF have no silhouette (no fitted frame, no yardstick): with the
     outline check on they search as with ``probes: 0`` (the whole window, no probe scored)."""
