@@ -56,6 +56,12 @@ With ``probes`` > 0:
   ``probe_score`` (chpf.tracking.probe_scores: the log-odds log10(L^3 / C) of CH-PF's rule,
   1 - C, or the best cosine). Both networks' scores peak on the object only within about 0.1
   of its box side and 15 % of its size, so a probe must land almost on it;
+- *the scene's colours* (``colour_weight``, in decades per unit): each clear fitted frame (see
+  the yardstick below) teaches a ``ColourModel`` (chpf.tracking.colour_model) the object's
+  colours inside its fitted outline and the background's outside, and every probe's score
+  gains ``colour_weight`` times its box's colour contrast under that model. The networks were
+  trained on renders: in a dark scene or at a grazing view they see the object about as weakly
+  as a patch of background, and the scene's own colours still tell it apart;
 - a calm frame scores ``calm_probes`` boxes over the image (``SearchRegion.remember``) and
   remembers the best places more than ``DECOY_AWAY`` sides from the estimate with their
   scores: *decoys*, what looks like the object while it is tracked elsewhere (a distractor, a
@@ -195,7 +201,7 @@ class SearchConfig(Section):
     probe_outline: float = setting(0.7, ge=0.0, le=1.0)
     fit_depths: tuple[float, ...] = (0.9, 0.95, 1.0, 1.05, 1.1)
     outline_doubt: float | None = setting(0.5, gt=0.0, le=1.0)
-    colour_weight: float = setting(3.0, ge=0.0)
+    colour_weight: float = setting(6.0, ge=0.0)
 
     def check(self) -> None:
         if any(not f > 0 for f in self.fit_depths):

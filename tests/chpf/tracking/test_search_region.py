@@ -593,7 +593,7 @@ def _red_square(cx: float, cy: float, side: int = 30) -> np.ndarray:
     return rgb
 
 
-@pytest.mark.parametrize("colour_weight", [0.0, 3.0])
+@pytest.mark.parametrize("colour_weight", [0.0, 6.0])
 def test_networks_blind_to_the_object_re_find_it_by_the_colours_learned_while_tracking(
     colour_weight,
 ):
@@ -605,7 +605,7 @@ def test_networks_blind_to_the_object_re_find_it_by_the_colours_learned_while_tr
         patience=1, widen=2.0, probe_score="cosine", probe_sizes=1.5, probe_margin=0.2,
         calm_probes=0, colour_weight=colour_weight,
     )  # fmt: skip
-    assert SearchConfig().colour_weight == 3.0
+    assert SearchConfig().colour_weight == 6.0
     search = SearchRegion(cfg, CUBE, Peaks([]), Outline((130.0, 135.0), floor=0.9))
     rng = np.random.default_rng(0)
     tracked = Frame(_red_square(130.0, 135.0), None, K)
@@ -620,8 +620,9 @@ def test_networks_blind_to_the_object_re_find_it_by_the_colours_learned_while_tr
     if colour_weight == 0.0:  # flat scores: nothing beats the estimate's box
         assert not search.elsewhere and not wide.probed
         return
-    assert search.elsewhere and wide.probed  # its box's centre on the 30 px object:
-    assert np.hypot(wide.box[0] + wide.box[2] / 2 - 250.0, wide.box[1] + wide.box[3] / 2 - 60.0) < 22
+    assert search.elsewhere and wide.probed
+    centre = np.array(wide.box[:2]) + np.array(wide.box[2:]) / 2
+    assert np.hypot(*(centre - (250.0, 60.0))) < 22  # on the 30 px object
 
 
 def test_a_method_without_a_silhouette_does_not_probe_while_probes_are_checked():
