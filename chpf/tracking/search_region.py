@@ -322,6 +322,8 @@ class SearchRegion:
         # the last clear fitted frames (``_remember_probe_outline``)
         self.off_object = False  # the estimate's outline did not look like the object's
         self.colours.reset()
+        self.colour_yardstick: list[float] = []  # the estimate's box's colour contrast on the
+        # last clear fitted frames (``teach_colours``)
 
     @property
     def points(self) -> np.ndarray:
@@ -391,6 +393,9 @@ class SearchRegion:
             return
         uv = project_outline(self.points, R[None], np.asarray(t)[None], frame.K, 1e-3)[0]
         self.colours.teach(frame.rgb, uv)
+        own_box, _ = self._own_box(frame, t)
+        contrast = float(self.colours.box_contrast(frame.rgb, own_box)[0])
+        self.colour_yardstick = [*self.colour_yardstick, contrast][-CALM_OUTLINES:]
 
     def _own_box(self, frame: Frame, t: np.ndarray) -> tuple[np.ndarray, float]:
         """The square box (1,4) of the object at the estimate t (3,) metres (``_side_at`` its
@@ -463,11 +468,17 @@ class SearchRegion:
         order = over[np.argsort(-gain[over])]
         bar = self.config.probe_outline * float(np.median(yardstick))
         gain, boxes = gain.copy(), boxes.copy()
+        colour_bar = np.inf
+        if self.config.colour_weight > 0.0 and self.colour_yardstick:
+            colour = float(np.median(self.colour_yardstick))
+            colour_bar = self.config.probe_outline * colour if colour > 0.0 else np.inf
         for k, i in enumerate(order):
             if k < OUTLINE_CHECKS:
                 contrast, fitted_box = self.outline_contrast(frame, boxes[i], k == 0)
                 if contrast >= bar:
                     boxes[i] = fitted_box
+                    continue
+                if self.colours.box_contrast(frame.rgb, boxes[i])[0] >= colour_bar:
                     continue
             gain[i] = self.config.probe_margin
         return gain, boxes
