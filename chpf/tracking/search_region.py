@@ -85,9 +85,12 @@ With ``probes`` > 0:
   about 0.5), a probe's codebook orientations lie several degrees off, and against the
   estimate's refined contrast probes on the object failed the check for 20 frames. A probe
   that passes moves to the box where its outline fitted best, and the search goes on from
-  there. A method without a
-  silhouette (PoseRBPF, CH-RBPF: no fitted frame) has no such yardstick and does not probe
-  while the check is on (``probe_outline: 0`` probes without it).
+  there. With colours (``colour_weight`` > 0) a probe whose outline falls short passes all
+  the same when its box's colour contrast reaches ``probe_outline`` times the median of the
+  estimate's box's on the same clear fitted frames (``colour_yardstick``): on a grazing view
+  the codebook's orientations missed the outline of the object for frames on end. A method
+  without a silhouette (PoseRBPF, CH-RBPF: no fitted frame) has no such yardstick and does
+  not probe while the check is on (``probe_outline: 0`` probes without it).
 
 The probe with the highest gain takes over when that gain exceeds ``probe_margin``: it becomes
 the region's box, so phi_cand draws around it, at its depth, with orientations that match its
@@ -387,8 +390,9 @@ class SearchRegion:
 
     def teach_colours(self, frame: Frame, R: np.ndarray, t: np.ndarray) -> None:
         """Learn the object's and the background's colours from ``frame`` with the object at
-        R (3,3), t (3,) metres (a fitted pose that shows it clearly; chpf.tracking.colour_model).
-        """
+        R (3,3), t (3,) metres (a fitted pose that shows it clearly; chpf.tracking.colour_model),
+        then keep its square box's colour contrast among the last ``CALM_OUTLINES`` (the
+        ``colour_yardstick``: the object as a probe's colours see it)."""
         if self.config.colour_weight <= 0.0:
             return
         uv = project_outline(self.points, R[None], np.asarray(t)[None], frame.K, 1e-3)[0]
@@ -459,8 +463,12 @@ class SearchRegion:
         while tracked; ``calm_outlines`` until one is measured), else lowered to the margin;
         the others above the margin are lowered to it. Both networks score a refined probe on
         textured background or a distractor about as well as the object; the outline tells a
-        whole object from them. Returns the gains and the boxes (M,4), a probe that passed
-        moved to the box where its outline fitted best (the search goes on from there)."""
+        whole object from them. A probe whose outline falls short passes all the same when
+        its box's colour contrast reaches ``probe_outline`` times the median of the
+        ``colour_yardstick`` (the object's seen the same way while tracked; a codebook
+        orientation a few degrees off misses a sharp outline). Returns the gains and the
+        boxes (M,4), a probe that passed by its outline moved to the box where the outline
+        fitted best (the search goes on from there)."""
         over = np.flatnonzero(gain > self.config.probe_margin)
         yardstick = self.probe_yardstick or self.calm_outlines
         if not self.verifies or over.size == 0 or not yardstick:
@@ -468,10 +476,7 @@ class SearchRegion:
         order = over[np.argsort(-gain[over])]
         bar = self.config.probe_outline * float(np.median(yardstick))
         gain, boxes = gain.copy(), boxes.copy()
-        colour_bar = np.inf
-        if self.config.colour_weight > 0.0 and self.colour_yardstick:
-            colour = float(np.median(self.colour_yardstick))
-            colour_bar = self.config.probe_outline * colour if colour > 0.0 else np.inf
+        colour_bar = self.config.probe_outline * self.tracked_colour_contrast()
         for k, i in enumerate(order):
             if k < OUTLINE_CHECKS:
                 contrast, fitted_box = self.outline_contrast(frame, boxes[i], k == 0)
@@ -482,6 +487,15 @@ class SearchRegion:
                     continue
             gain[i] = self.config.probe_margin
         return gain, boxes
+
+    def tracked_colour_contrast(self) -> float:
+        """The median colour contrast of the estimate's box on the last clear fitted frames
+        (``teach_colours``); inf while colours are off, unlearned, or do not set the object
+        apart (a median <= 0): then no probe passes by its colours."""
+        if self.config.colour_weight <= 0.0 or not self.colour_yardstick:
+            return math.inf
+        median = float(np.median(self.colour_yardstick))
+        return median if median > 0.0 else math.inf
 
     def outline_contrast(
         self, frame: Frame, box: np.ndarray, shifted: bool = False

@@ -625,6 +625,37 @@ def test_networks_blind_to_the_object_re_find_it_by_the_colours_learned_while_tr
     assert np.hypot(*(centre - (250.0, 60.0))) < 22  # on the 30 px object
 
 
+@pytest.mark.parametrize("colour_weight", [0.0, 6.0])
+def test_a_probe_whose_outline_misses_passes_where_its_colours_are_the_objects(colour_weight):
+    """The outline check fails everywhere off the estimate (the probes' codebook orientations
+    miss a grazing view's outline): a distractor that the networks prefer stays out, and the
+    jumped object passes by its colours (its box's colour contrast reaches 0.7 of the
+    estimate's box's while tracked), unless colours are off."""
+    est = (np.eye(3), np.array([-0.1, 0.05, 1.0]))
+    cfg = SearchConfig(
+        patience=1, widen=2.0, probe_score="cosine", probe_sizes=1.5, probe_margin=0.2,
+        calm_probes=0, colour_weight=colour_weight,
+    )  # fmt: skip
+    distractor = ((60.0, 60.0), 36.0, 1.4)  # the networks' best place: on teal background
+    search = SearchRegion(cfg, CUBE, Peaks([]), Outline((130.0, 135.0)))
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        search.frame(Frame(_red_square(130.0, 135.0), None, K), est, rng)
+    assert len(search.colour_yardstick) == (2 if colour_weight else 0)  # clear frames 2, 3
+    search.prober = Peaks([distractor])
+    jumped = Frame(_red_square(250.0, 60.0), None, K)
+    for _ in range(8):
+        wide = _widened(search, jumped, est, rng)
+        if search.elsewhere:
+            break
+    if colour_weight == 0.0:
+        assert not search.elsewhere and not wide.probed
+        return
+    assert search.elsewhere and wide.probed
+    centre = np.array(wide.box[:2]) + np.array(wide.box[2:]) / 2
+    assert np.hypot(*(centre - (250.0, 60.0))) < 22
+
+
 def test_a_method_without_a_silhouette_does_not_probe_while_probes_are_checked():
     """PoseRBPF and CH-RBPF have no silhouette (no fitted frame, no yardstick): with the
     outline check on they search as with ``probes: 0`` (the whole window, no probe scored)."""
