@@ -9,7 +9,9 @@ truth follows. The scenes are generated into ``--cache-dir``/forced_loss (their 
 jump is not part of a suite's hash). Every method tracks them with the tracking YAML ``--config``
 (default: ``search.box_source: estimate``, i.e. the first frame's box only) and the seeds; the
 table printed gives per sequence and seed the frames from the jump to the first frame with ADD-S <
-0.1 diameter ("-": not within the sequence), then per method the runs re-acquired within 30 frames.
+0.1 diameter ("-": not within the sequence; "not tracked before": ADD-S >= 0.1 diameter on the
+frame before the jump), then per method the runs re-acquired within 30 frames, of all runs and
+of those tracked before the jump.
 ``--figure PNG`` draws the search window's width, alpha and the set's doubt (what widens the
 window: chpf.tracking.search_region.set_doubt), and the ADD-S error over the frames of the
 first job that finds the object again (else the first job), tracked again with a Tracker (the
@@ -60,11 +62,21 @@ def jumping_target(jump: int, fraction: float) -> Iterator[None]:
         gen.scene_trajectories = original
 
 
+def _errors(summary: dict) -> np.ndarray:
+    """A job summary's ADD-S per frame (F,) in diameters (inf where the filter gave no pose)."""
+    return np.array([np.inf if v is None else v for v in summary["adds"]]) / summary["diameter"]
+
+
 def reacquisition(summary: dict, jump: int) -> int | None:
     """Frames from the jump to the first tracked frame of a job's summary (None: none)."""
-    e = np.array([np.inf if v is None else v for v in summary["adds"]]) / summary["diameter"]
-    hit = np.nonzero(e[jump:] < TRACKED)[0]
+    hit = np.nonzero(_errors(summary)[jump:] < TRACKED)[0]
     return int(hit[0]) if hit.size else None
+
+
+def tracked_before(summary: dict, jump: int) -> bool:
+    """Whether a job's summary was tracked on the frame before the jump (a run that had lost
+    the object already has nothing to re-acquire: an edge-on view, a wrong depth)."""
+    return bool(_errors(summary)[jump - 1] < TRACKED)
 
 
 def draw_figure(seq, config: str, seed: int, jump: int, path: Path) -> None:
@@ -163,16 +175,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     run_jobs(args.out, jobs, suite.tracking.n_particles, config, args.workers, progress=False)
     print(f"frames from the jump to ADD-S < {TRACKED} diameter ('-': never)")
     found = []
-    within: dict[str, list[bool]] = {}
+    within: dict[str, list[tuple[bool, bool]]] = {}  # (re-acquired in time, tracked before)
     for job in jobs:
         summary = json.loads((args.out / "jobs" / job.id / "summary.json").read_text())
         n = reacquisition(summary, args.jump)
-        print(f"{job.id}: {'-' if n is None else n}")
-        within.setdefault(job.method, []).append(n is not None and n <= WITHIN)
+        before = tracked_before(summary, args.jump)
+        print(f"{job.id}: {'-' if n is None else n}{'' if before else ' (not tracked before)'}")
+        within.setdefault(job.method, []).append((n is not None and n <= WITHIN, before))
         if n is not None:
             found.append(job)
-    for method, hits in within.items():
-        print(f"{method}: re-acquired within {WITHIN} frames in {sum(hits)} of {len(hits)} runs")
+    for method, runs in within.items():
+        hits, before = np.array(runs).T
+        print(
+            f"{method}: re-acquired within {WITHIN} frames in {hits.sum()} of {len(runs)} runs, "
+            f"in {(hits & before).sum()} of the {before.sum()} tracked before the jump"
+        )
     if args.figure is not None:
         shown = (found or jobs)[0]
         draw_figure(shown.seq, config, shown.seed, args.jump, args.figure)

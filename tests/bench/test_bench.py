@@ -363,3 +363,12 @@ def test_suites_name_shipped_bundles(tmp_path: Path, monkeypatch) -> None:
     assert names() == [("box", 2)]
     assert names(bundles=["mug"]) == [("mug", 1)]
     assert names(bundles=["shipped"]) == [("box", 2), ("mug", 1)]
+
+
+def test_forced_loss_counts_frames_to_reacquisition_and_whether_the_run_was_tracked_before():
+    from bench.forced_loss import reacquisition, tracked_before
+
+    summary = {"diameter": 0.2, "adds": [0.01, 0.01, None, 0.05, 0.03, 0.01]}  # jump at 2
+    assert reacquisition(summary, 2) == 3 and tracked_before(summary, 2)
+    lost_early = {"diameter": 0.2, "adds": [0.01, 0.03, 0.05, 0.05, 0.05, 0.05]}
+    assert reacquisition(lost_early, 2) is None and not tracked_before(lost_early, 2)
