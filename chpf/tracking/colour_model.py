@@ -33,6 +33,15 @@ INNER = 0.6
 """The central share of a box's side whose mean posterior counts as the object's."""
 RING = 1.6
 """The outer side, in box sides, of the ring whose mean posterior counts as the surroundings'."""
+READ_WIDTH = 320
+"""Images wider than this are read at every ``stride``-th pixel in both directions (histograms
+and box means need no more; at 1280 x 720 reading every pixel cost 8.1 ms to teach and 4.9 ms
+for a posterior with 96 boxes, against 0.6 and 0.5 ms at 320 x 240)."""
+
+
+def stride(width: int) -> int:
+    """The step (>= 1) at which the colour model reads an image ``width`` pixels wide."""
+    return max(1, width // READ_WIDTH)
 
 
 def colour_bins(rgb: np.ndarray) -> np.ndarray:
@@ -74,14 +83,17 @@ class ColourModel:
 
     def teach(self, rgb: np.ndarray, uv: np.ndarray) -> None:
         """Learn from rgb (H,W,3) uint8 where the object's outline projects to pixels uv (M,2):
-        inside its hull the object, outside the grown hull the background. A hull without a
-        pixel inside the image teaches nothing."""
-        height, width = rgb.shape[:2]
+        inside its hull the object, outside the grown hull the background (every ``stride``-th
+        pixel). A hull without a pixel inside the image teaches nothing."""
+        step = stride(rgb.shape[1])
+        read = rgb[::step, ::step]
+        height, width = read.shape[:2]
+        uv = np.asarray(uv, dtype=np.float64) / step
         inside = hull_mask(uv, height, width)
         outside = ~hull_mask(uv, height, width, MARGIN)
         if not inside.any() or not outside.any():
             return
-        bins = colour_bins(rgb)
+        bins = colour_bins(read)
         new = [np.bincount(bins[m], minlength=BINS**3) / m.sum() for m in (inside, outside)]
         if self.object_hist is None or self.background_hist is None:
             self.object_hist, self.background_hist = new
@@ -91,15 +103,17 @@ class ColourModel:
         self._posterior = None
 
     def posterior(self, rgb: np.ndarray) -> np.ndarray:
-        """p(object | colour) (H,W) float64 of each pixel of rgb (H,W,3) uint8 (kept for the
-        same image array)."""
+        """p(object | colour) float64 of every ``stride``-th pixel of rgb (H,W,3) uint8 in both
+        directions, (H,W) for an image at most ``READ_WIDTH`` wide (kept for the same image
+        array)."""
         if self.object_hist is None or self.background_hist is None:
             raise RuntimeError("ColourModel.posterior before any frame was taught")
         if self._posterior is not None and self._posterior[0] is rgb:
             return self._posterior[1]
         total = self.object_hist + self.background_hist
         table = np.divide(self.object_hist, total, out=np.full_like(total, 0.5), where=total > 0.0)
-        posterior = table[colour_bins(rgb)]
+        step = stride(rgb.shape[1])
+        posterior = table[colour_bins(rgb[::step, ::step])]
         self._posterior = (rgb, posterior)
         return posterior
 
@@ -111,6 +125,7 @@ class ColourModel:
         if not self.ready:
             return np.zeros(len(boxes))
         posterior = self.posterior(rgb)
+        boxes = boxes / stride(rgb.shape[1])  # in the posterior's pixels
         summed = cv2.integral(posterior)  # (H+1,W+1)
         height, width = posterior.shape
         cx, cy = boxes[:, 0] + 0.5 * boxes[:, 2], boxes[:, 1] + 0.5 * boxes[:, 3]

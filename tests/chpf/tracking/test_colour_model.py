@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from chpf.tracking.colour_model import BINS, ColourModel, hull_mask
+from chpf.tracking.colour_model import BINS, ColourModel, hull_mask, stride
 
 H, W = 120, 160
 RED, TEAL, GREY = (200, 30, 30), (20, 120, 120), (90, 90, 90)
@@ -75,3 +75,22 @@ def test_teaching_keeps_a_running_mean_at_its_rate_and_reset_forgets():
     assert model.object_hist[red_bin] == pytest.approx(0.75)
     model.reset()
     assert not model.ready
+
+
+def test_a_large_image_is_read_at_a_stride_and_scores_as_the_small_one():
+    """A frame four times as large (each pixel a 4 x 4 block) is read every 4th pixel: the same
+    histograms, and the same contrast for boxes four times as large."""
+    small, large = ColourModel(), ColourModel()
+    small.teach(_scene(20, 20), _corners(20, 20))
+    big = np.repeat(np.repeat(_scene(20, 20), 4, axis=0), 4, axis=1)  # 640 x 480
+    assert stride(big.shape[1]) == 2 and stride(W) == 1
+    huge = np.repeat(np.repeat(big, 2, axis=0), 2, axis=1)  # 1280 x 960: stride 4
+    large.teach(huge, _corners(20, 20) * 8)
+    assert large.posterior(huge).shape == (240, 320)
+    np.testing.assert_allclose(large.object_hist, small.object_hist, atol=0.02)
+    jumped = _scene(110, 70)
+    boxes = np.stack([_box(125, 85), _box(35, 35), _box(110, 85)])
+    huge_jumped = np.repeat(np.repeat(jumped, 8, axis=0), 8, axis=1)
+    np.testing.assert_allclose(
+        large.box_contrast(huge_jumped, boxes * 8), small.box_contrast(jumped, boxes), atol=0.05
+    )
