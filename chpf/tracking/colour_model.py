@@ -4,10 +4,10 @@ Region-based 6D trackers (PWP3D, RBOT, ICG) separate an object from its surround
 colour histograms, the object's and the background's, learned online from the frames they
 track. chpf's networks were trained on renders; in a dark or strongly lit scene, or at a grazing
 view, they see the object about as weakly as a patch of background (after a forced jump,
-boxes on the object scored 0.5-1 decade of log-odds where the best background boxes scored
-1.3-2.2). The scene's own colours still tell it apart: learned from the tracked frames before a
-jump, the boxes on the object scored 0.27-0.90 by ``box_contrast`` and the best background
-boxes at most 0.21 (docs/own-recording.md).
+boxes on the object scored -0.2 to 2.0 decades of log-odds where the best background boxes
+scored 0.8 to 2.2). The scene's own colours still tell it apart: learned from the tracked frames
+before a jump, the boxes on the object scored 0.27-0.90 by ``box_contrast`` and the best
+background boxes at most 0.21 (docs/own-recording.md).
 
 ``ColourModel`` keeps the two histograms (``BINS`` per RGB channel), each a running mean over
 the frames it is taught (``rate`` the new frame's share): the object's from the pixels inside
