@@ -23,6 +23,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from chpf.tracking.silhouette import colour_codes
+
 BINS = 16
 """Histogram bins per RGB channel (RBOT uses 32 for larger images; 16 keeps a 320x240 frame's
 object of a few thousand pixels from leaving most of its bins empty)."""
@@ -42,12 +44,6 @@ for a posterior with 96 boxes, against 0.6 and 0.5 ms at 320 x 240)."""
 def stride(width: int) -> int:
     """The step (>= 1) at which the colour model reads an image ``width`` pixels wide."""
     return max(1, width // READ_WIDTH)
-
-
-def colour_bins(rgb: np.ndarray) -> np.ndarray:
-    """The histogram bin (H,W) int of each pixel of rgb (H,W,3) uint8."""
-    q = (np.asarray(rgb, dtype=np.uint8) // (256 // BINS)).astype(np.int64)
-    return (q[..., 0] * BINS + q[..., 1]) * BINS + q[..., 2]
 
 
 def hull_mask(uv: np.ndarray, height: int, width: int, grow: float = 0.0) -> np.ndarray:
@@ -74,7 +70,8 @@ class ColourModel:
         """Nothing learned (start of a sequence)."""
         self.object_hist: np.ndarray | None = None  # (BINS^3,) sums to 1
         self.background_hist: np.ndarray | None = None
-        self._posterior: tuple[np.ndarray, np.ndarray] | None = None  # (the rgb, its map)
+        # the last image, its posterior and that posterior's integral image (H+1,W+1)
+        self._maps: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     @property
     def ready(self) -> bool:
@@ -93,29 +90,35 @@ class ColourModel:
         outside = ~hull_mask(uv, height, width, MARGIN)
         if not inside.any() or not outside.any():
             return
-        bins = colour_bins(read)
+        bins = colour_codes(read, BINS)
         new = [np.bincount(bins[m], minlength=BINS**3) / m.sum() for m in (inside, outside)]
         if self.object_hist is None or self.background_hist is None:
             self.object_hist, self.background_hist = new
         else:
             self.object_hist = (1.0 - self.rate) * self.object_hist + self.rate * new[0]
             self.background_hist = (1.0 - self.rate) * self.background_hist + self.rate * new[1]
-        self._posterior = None
+        self._maps = None
 
     def posterior(self, rgb: np.ndarray) -> np.ndarray:
         """p(object | colour) float64 of every ``stride``-th pixel of rgb (H,W,3) uint8 in both
         directions, (H,W) for an image at most ``READ_WIDTH`` wide (kept for the same image
         array)."""
+        return self._posterior_maps(rgb)[0]
+
+    def _posterior_maps(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``posterior`` of rgb and its integral image (H+1,W+1), both kept for the same image
+        array (box_contrast reads them several times a frame)."""
         if self.object_hist is None or self.background_hist is None:
             raise RuntimeError("ColourModel.posterior before any frame was taught")
-        if self._posterior is not None and self._posterior[0] is rgb:
-            return self._posterior[1]
-        total = self.object_hist + self.background_hist
-        table = np.divide(self.object_hist, total, out=np.full_like(total, 0.5), where=total > 0.0)
-        step = stride(rgb.shape[1])
-        posterior = table[colour_bins(rgb[::step, ::step])]
-        self._posterior = (rgb, posterior)
-        return posterior
+        if self._maps is None or self._maps[0] is not rgb:
+            total = self.object_hist + self.background_hist
+            table = np.divide(
+                self.object_hist, total, out=np.full_like(total, 0.5), where=total > 0.0
+            )
+            step = stride(rgb.shape[1])
+            posterior = table[colour_codes(rgb[::step, ::step], BINS)]
+            self._maps = (rgb, posterior, cv2.integral(posterior))
+        return self._maps[1], self._maps[2]
 
     def box_contrast(self, rgb: np.ndarray, boxes: np.ndarray) -> np.ndarray:
         """Per square box (M,4) (x, y, w, h) pixels of rgb (H,W,3): the mean posterior in its
@@ -124,9 +127,8 @@ class ColourModel:
         boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
         if not self.ready:
             return np.zeros(len(boxes))
-        posterior = self.posterior(rgb)
+        posterior, summed = self._posterior_maps(rgb)
         boxes = boxes / stride(rgb.shape[1])  # in the posterior's pixels
-        summed = cv2.integral(posterior)  # (H+1,W+1)
         height, width = posterior.shape
         cx, cy = boxes[:, 0] + 0.5 * boxes[:, 2], boxes[:, 1] + 0.5 * boxes[:, 3]
         side = boxes[:, 2]
