@@ -772,9 +772,11 @@ class CHLitModule(_ChpfModule):
     def init_encoders_from_ae(self, path: str | os.PathLike) -> None:
         """Copy an AE checkpoint's encoder weights into both branches (ConfigError if not 'ae')."""
         ae, info = load_autoencoder(path)
-        self.model.obs_encoder.load_state_dict(ae.encoder.state_dict())
-        if self.model.cand_encoder is not self.model.obs_encoder:
-            self.model.cand_encoder.load_state_dict(ae.encoder.state_dict())
+        branches = (self.model.obs_encoder, self.model.cand_encoder)
+        for encoder in {id(e): e for e in branches}.values():
+            missing, unexpected = encoder.load_state_dict(ae.encoder.state_dict(), strict=False)
+            if unexpected or any(not k.startswith("refine.") for k in missing):
+                raise ConfigError(f"{path}: its encoder does not fit the classifier's")
         if self.hparams.channels_last:
             self.model.to(memory_format=torch.channels_last)
         self.ae_encoder_sha256 = state_sha256(ae.encoder)

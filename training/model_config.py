@@ -80,16 +80,24 @@ class ClassifierConfig(Section):
         share_twin: one encoder (shared weights) serves both branches.
         shares_ae_encoder: the observed branch is the autoencoder's encoder, frozen (set by
             freeze_encoder): one encoder pass per crop serves L and C at run time.
+        refine_stages: a zero-initialised residual 3x3 convolution (``training.models.Residual``)
+            follows each of the encoder's last this many stages: depth added to the
+            autoencoder's encoder; 0 = none.
     """
 
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
     head: HeadConfig = field(default_factory=HeadConfig)
     share_twin: bool = True
     shares_ae_encoder: bool = False
+    refine_stages: int = setting(0, ge=0)
 
     def check(self) -> None:
         if self.shares_ae_encoder and not self.share_twin:
             raise Invalid("shares_ae_encoder", "needs share_twin (one encoder for both branches)")
+        if self.shares_ae_encoder and self.refine_stages:
+            raise Invalid("refine_stages", "must be 0 when the autoencoder's encoder is shared")
+        if self.refine_stages > len(self.encoder.channels):
+            raise Invalid("refine_stages", f"the encoder has {len(self.encoder.channels)} stages")
 
 
 C = TypeVar("C", EncoderConfig, ClassifierConfig)

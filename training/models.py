@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from chpf.errors import ConfigError
 from training.model_config import ClassifierConfig, EncoderConfig, HeadConfig
 
 
@@ -31,10 +32,28 @@ class Preprocess(nn.Module):
         return crops.permute(0, 3, 1, 2).to(torch.float32) * (1.0 / 255.0)
 
 
-class Encoder(nn.Module):
-    """Convolutional encoder: float ``(B, 3, S, S)`` in [0, 1] -> raw embedding ``(B, E)``."""
+class Residual(nn.Module):
+    """``x + conv3x3(relu(x))`` with the convolution zero-initialised: the identity at first,
+    so that it can be added to a trained encoder without changing what it computes."""
 
-    def __init__(self, config: EncoderConfig | None = None) -> None:
+    def __init__(self, channels: int) -> None:
+        super().__init__()
+        self.conv = nn.Conv2d(channels, channels, 3, padding=1)
+        nn.init.zeros_(self.conv.weight)
+        nn.init.zeros_(self.conv.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.conv(F.relu(x))
+
+
+class Encoder(nn.Module):
+    """Convolutional encoder: float ``(B, 3, S, S)`` in [0, 1] -> raw embedding ``(B, E)``.
+
+    ``refine_stages`` > 0: a ``Residual`` block follows each of that many last stride-2 stages
+    (the classifier's extra depth on top of the autoencoder's encoder).
+    """
+
+    def __init__(self, config: EncoderConfig | None = None, refine_stages: int = 0) -> None:
         super().__init__()
         cfg = config or EncoderConfig()
         self.config = cfg
@@ -45,6 +64,12 @@ class Encoder(nn.Module):
             layers += [nn.Conv2d(c_in, c, k, stride=2, padding=k // 2), make_activation(cfg)]
             c_in = c
         self.convs = nn.Sequential(*layers)
+        # stage i is layers 2i (convolution) and 2i + 1 (activation)
+        n = len(cfg.channels)
+        if refine_stages > n:
+            raise ConfigError(f"refine_stages: {refine_stages} > the encoder's {n} stages")
+        last = range(n - refine_stages, n)
+        self.refine = nn.ModuleDict({str(i): Residual(cfg.channels[i]) for i in last})
         self.out_hw = cfg.size // (2 ** len(cfg.channels))
         self.fc = nn.Linear(c_in * self.out_hw * self.out_hw, cfg.embedding_dim)
 
@@ -57,7 +82,11 @@ class Encoder(nn.Module):
         return self.config.size
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        h = self.convs(x)
+        h = x
+        for i in range(len(self.convs) // 2):
+            h = self.convs[2 * i + 1](self.convs[2 * i](h))
+            if str(i) in self.refine:
+                h = self.refine[str(i)](h)
         return self.fc(torch.flatten(h, 1))
 
 
@@ -145,8 +174,10 @@ class CHClassifier(nn.Module):
         self.config = cfg
         self.shares_ae_encoder = cfg.shares_ae_encoder
         self.share_twin = cfg.share_twin
-        self.obs_encoder = Encoder(cfg.encoder)
-        self.cand_encoder = self.obs_encoder if self.share_twin else Encoder(cfg.encoder)
+        self.obs_encoder = Encoder(cfg.encoder, cfg.refine_stages)
+        self.cand_encoder = (
+            self.obs_encoder if self.share_twin else Encoder(cfg.encoder, cfg.refine_stages)
+        )
         self.head = CHHead(cfg.encoder.embedding_dim, cfg.head)
 
     def embed_obs(self, obs: torch.Tensor) -> torch.Tensor:

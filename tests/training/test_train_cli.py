@@ -27,6 +27,7 @@ from training.checkpoints import (
 from training.cli import main, make_cli
 from training.codebook import codebook_arrays, save_codebook
 from training.evaluate import main as evaluate_main
+from training.lit import CHLitModule
 from training.model_config import ClassifierConfig
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -115,6 +116,17 @@ def test_ch_from_frozen_ae_encoder(
         main([*args[:7], "--ckpt_path", str(ae_ckpt)])
 
 
+def test_refined_classifier_starts_as_the_autoencoders_encoder(ae_ckpt: Path) -> None:
+    """With refine_stages the classifier loads the autoencoder's encoder around its new
+    (zero-initialised) blocks, and so embeds crops exactly as the autoencoder does."""
+    module = CHLitModule(ClassifierConfig(refine_stages=1), init_from_ae=str(ae_ckpt))
+    module.init_encoders_from_ae(ae_ckpt)
+    ae, _ = load_autoencoder(ae_ckpt)
+    assert set(module.model.obs_encoder.refine) == {"1"}
+    x = torch.rand(3, 3, ae.encoder.size, ae.encoder.size)
+    assert torch.equal(module.model.obs_encoder(x), ae.encoder(x))
+
+
 def test_crop_size_mismatch(ae_dir: Path, tmp_path: Path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     enc = "{channels: [8, 16], kernel: 3, embedding_dim: 16, size: 32}"
@@ -200,7 +212,8 @@ def test_shipped_configs_build_their_modules(
 def test_default_train_yaml_documents_every_model_key(kind: str, tmp_path: Path) -> None:
     """configs/train_{kind}.yaml names every model argument and every key of its typed configs,
     and chpf-train reads back exactly what it says; the classifier section holds the
-    ClassifierConfig defaults (its encoder is the autoencoder's at run time)."""
+    ClassifierConfig defaults but refine_stages (its encoder is the autoencoder's at run
+    time)."""
     from training.lit import AELitModule, CHLitModule
 
     path = ROOT / "configs" / f"train_{kind}.yaml"
@@ -215,7 +228,8 @@ def test_default_train_yaml_documents_every_model_key(kind: str, tmp_path: Path)
     root = ["--trainer.default_root_dir", str(tmp_path)]
     parsed = make_cli(kind, ["--config", str(path), *root, *init]).config["model"].as_dict()
     if kind == "ch":
-        assert written["classifier"] == to_dict(ClassifierConfig())
+        # the defaults are the networks of checkpoints older than a key; the YAML adds blocks
+        assert written["classifier"] == to_dict(ClassifierConfig(refine_stages=2))
         parsed["init_from_ae"], parsed["extra_pairs"] = written["init_from_ae"], 32
     assert json.loads(json.dumps(parsed)) == written
 

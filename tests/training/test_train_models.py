@@ -60,6 +60,23 @@ def test_classifier_twin_sharing() -> None:
     assert torch.allclose(shared(x, x[[2, 0, 1]]), ref, atol=1e-5)
 
 
+def test_refine_stages_start_as_the_identity_and_train() -> None:
+    """Residual blocks added to an encoder compute what it computed (zero-initialised), their
+    weights get gradients, and the stored config without the key builds no blocks."""
+    base = Encoder(TINY)
+    refined = Encoder(TINY, refine_stages=2)
+    missing, unexpected = refined.load_state_dict(base.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith("refine.") for k in missing)
+    x = torch.rand(4, 3, 16, 16)
+    assert torch.equal(refined(x), base(x))
+    refined(x).square().sum().backward()
+    assert all(float(m.conv.weight.grad.abs().sum()) > 0 for m in refined.refine.values())
+    ch = CHClassifier(ClassifierConfig(TINY, refine_stages=1))
+    assert set(ch.obs_encoder.refine) == {"1"} and ch.obs_encoder is ch.cand_encoder
+    old = from_stored(ClassifierConfig, {"encoder": TINY_KEYS}, "old.ckpt")
+    assert old.refine_stages == 0 and not CHClassifier(old).obs_encoder.refine
+
+
 def test_bad_configs() -> None:
     with pytest.raises(ConfigError, match="size: 20 is not divisible"):
         EncoderConfig(channels=(8, 16, 32), size=20)
@@ -89,6 +106,10 @@ def test_bad_configs() -> None:
         from_stored(ClassifierConfig, {"encoder": {"decoder_norm": "layer"}}, "x.ckpt")
     with pytest.raises(ConfigError, match="decoder_channels: must be 2"):
         tiny(decoder_channels=(8,))
+    with pytest.raises(ConfigError, match="refine_stages: the encoder has 2 stages"):
+        ClassifierConfig(TINY, refine_stages=3)
+    with pytest.raises(ConfigError, match="refine_stages: must be 0"):
+        ClassifierConfig(TINY, refine_stages=1, shares_ae_encoder=True)
 
 
 def test_activation_and_decoder_norm_options() -> None:
