@@ -47,12 +47,14 @@ class QuantizeReport:
 
 
 def calibration_crops(
-    dataset: str | Path, bundle: Bundle, n: int = 512, seed: int = 0
+    dataset: str | Path, bundle: Bundle, n: int = 512, seed: int = 0, obj_id: int | None = None
 ) -> np.ndarray:
     """n uint8 crops (n,S,S,3) of the bundle's object in ``dataset`` (test split, every scene)
-    at its true translation jittered like a particle (0.1 diameter sideways, 10 % in depth)."""
+    at its true translation jittered like a particle (0.1 diameter sideways, 10 % in depth).
+    ``obj_id``: the dataset's id of that object (default: the bundle's own)."""
     ds = BopDataset(dataset)
-    obj_id = bundle.obj_info.obj_id
+    own = obj_id is None
+    obj_id = bundle.obj_info.obj_id if own else obj_id
     frames = []
     for sid in ds.scene_ids("test"):
         scene = ds.scene("test", sid)
@@ -61,7 +63,10 @@ def calibration_crops(
             if pose is not None:
                 frames.append((scene, im, np.asarray(pose.t, dtype=np.float64)))
     if not frames:
-        raise BundleError(f"{dataset}: no ground-truth pose of obj_id {obj_id} to cut crops at")
+        hint = " (the bundle's own id; --obj-id N names the dataset's)" if own else ""
+        raise BundleError(
+            f"{dataset}: no ground-truth pose of obj_id {obj_id} to cut crops at{hint}"
+        )
     rng = np.random.default_rng(seed)
     per_frame = -(-n // len(frames))
     d = bundle.obj_info.diameter

@@ -3,6 +3,7 @@
 Example::
 
     chpf-quantize --bundle bundles/mug --dataset data/mug_seq     # crops from your sequences
+    chpf-quantize --bundle bundles/duck --dataset data/seq --obj-id 5   # the dataset's id of it
     chpf-quantize --bundle chpf/assets/bundles/box                # the shipped demo's crops
 """
 
@@ -31,6 +32,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="BOP dataset with ground truth of the bundle's object (default: the shipped demo "
         "sequence when it shows that object)",
     )
+    p.add_argument(
+        "--obj-id",
+        type=int,
+        help="the dataset's obj_id of the bundle's object (default: the bundle's own)",
+    )
     p.add_argument("--crops", type=int, default=1024, help="crops: half calibrate, half check")
     p.add_argument("--min-cosine", type=float, default=0.99, help="int8 vs float32 agreement")
     p.add_argument("--threads", type=int, default=2, help="onnxruntime threads")
@@ -55,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         raise BundleError(f"--crops {args.crops}: at least 16 (half calibrate, half check)")
     t0 = time.perf_counter()
     with lock_output_path(args.bundle, "chpf-quantize"):
-        crops = calibration_crops(dataset, bundle, args.crops)
+        crops = calibration_crops(dataset, bundle, args.crops, obj_id=args.obj_id)
         report = quantize_bundle(args.bundle, crops, args.min_cosine, args.threads, source=source)
     for key, name in report.files.items():
         print(f"{args.bundle / name}: {key}, min cosine to float32 {report.min_cosine[key]:.4f}")

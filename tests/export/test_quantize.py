@@ -78,6 +78,26 @@ def test_disagreement_writes_nothing(copy, crops):
     assert (copy / "manifest.json").read_bytes() == manifest
 
 
+def test_obj_id_maps_the_bundle_onto_the_datasets_id(copy, tmp_path, capsys):
+    """A dataset that names the object by another obj_id: refused with the hint, then used
+    with --obj-id."""
+    bundle = Bundle.load(copy)
+    data = tmp_path / "seq"
+    shutil.copytree(demo_dataset(bundle), data)
+    own, other = bundle.obj_info.obj_id, bundle.obj_info.obj_id + 40
+    for gt_file in data.glob("test/*/scene_gt.json"):
+        gt = json.loads(gt_file.read_text())
+        for poses in gt.values():
+            for p in poses:
+                p["obj_id"] = other if p["obj_id"] == own else p["obj_id"]
+        gt_file.write_text(json.dumps(gt))
+    with pytest.raises(BundleError, match=f"obj_id {own} .*--obj-id N names the dataset's"):
+        main(["--bundle", str(copy), "--dataset", str(data), "--crops", "64"])
+    args = ["--bundle", str(copy), "--dataset", str(data), "--crops", "64"]
+    assert main([*args, "--obj-id", str(other)]) == 0
+    assert "calibrated on 32 crops" in capsys.readouterr().out
+
+
 def test_cli_uses_the_demo_crops_for_the_shipped_object(copy, capsys):
     assert main(["--bundle", str(copy), "--crops", "64"]) == 0
     out = capsys.readouterr().out
