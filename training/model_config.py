@@ -82,7 +82,9 @@ class ClassifierConfig(Section):
             freeze_encoder): one encoder pass per crop serves L and C at run time.
         refine_stages: a zero-initialised residual 3x3 convolution (``training.models.Residual``)
             follows each of the encoder's last this many stages: depth added to the
-            autoencoder's encoder; 0 = none.
+            autoencoder's encoder; 0 = none. A separate candidate branch (share_twin false:
+            the autoencoder's frozen encoder, freeze_candidate) has none, so that the export
+            reuses the autoencoder's codebook embeddings for it.
     """
 
     encoder: EncoderConfig = field(default_factory=EncoderConfig)

@@ -175,9 +175,8 @@ class CHClassifier(nn.Module):
         self.shares_ae_encoder = cfg.shares_ae_encoder
         self.share_twin = cfg.share_twin
         self.obs_encoder = Encoder(cfg.encoder, cfg.refine_stages)
-        self.cand_encoder = (
-            self.obs_encoder if self.share_twin else Encoder(cfg.encoder, cfg.refine_stages)
-        )
+        # a separate candidate branch is the autoencoder's frozen encoder (freeze_candidate)
+        self.cand_encoder = self.obs_encoder if self.share_twin else Encoder(cfg.encoder)
         self.head = CHHead(cfg.encoder.embedding_dim, cfg.head)
 
     def embed_obs(self, obs: torch.Tensor) -> torch.Tensor:

@@ -91,9 +91,9 @@ def test_obj_id_maps_the_bundle_onto_the_datasets_id(copy, tmp_path, capsys):
             for p in poses:
                 p["obj_id"] = other if p["obj_id"] == own else p["obj_id"]
         gt_file.write_text(json.dumps(gt))
-    with pytest.raises(BundleError, match=f"obj_id {own} .*--obj-id N names the dataset's"):
-        main(["--bundle", str(copy), "--dataset", str(data), "--crops", "64"])
     args = ["--bundle", str(copy), "--dataset", str(data), "--crops", "64"]
+    with pytest.raises(BundleError, match=f"obj_id {own} .*--obj-id N names the dataset's"):
+        main(args)
     assert main([*args, "--obj-id", str(other)]) == 0
     assert "calibrated on 32 crops" in capsys.readouterr().out
 

@@ -18,6 +18,7 @@ import yaml
 
 from chpf.config_schema import to_dict
 from chpf.errors import ConfigError
+from export.pipeline import same_weights
 from training.checkpoints import (
     checkpoint_info,
     load_autoencoder,
@@ -125,6 +126,12 @@ def test_refined_classifier_starts_as_the_autoencoders_encoder(ae_ckpt: Path) ->
     assert set(module.model.obs_encoder.refine) == {"1"}
     x = torch.rand(3, 3, ae.encoder.size, ae.encoder.size)
     assert torch.equal(module.model.obs_encoder(x), ae.encoder(x))
+    # a frozen candidate branch stays the autoencoder's encoder, which the export then reuses
+    cfg = ClassifierConfig(refine_stages=1)
+    frozen = CHLitModule(cfg, init_from_ae=str(ae_ckpt), freeze_candidate=True)
+    frozen.init_encoders_from_ae(ae_ckpt)
+    assert set(frozen.model.obs_encoder.refine) == {"1"} and not frozen.model.cand_encoder.refine
+    assert same_weights(frozen.model.cand_encoder, ae.encoder)
 
 
 def test_crop_size_mismatch(ae_dir: Path, tmp_path: Path, monkeypatch) -> None:
