@@ -17,6 +17,12 @@ def _flat(d: Any, prefix: str = "") -> list[tuple[str, Any]]:
         for k, v in d.items():
             out += _flat(v, f"{prefix}{k}.")
         return out
+    if isinstance(d, list) and d and all(isinstance(x, dict) and "visib" in x for x in d):
+        out = []  # visibility bands (training.evaluate): one row per band and figure
+        for band in d:
+            lo, hi = band["visib"]
+            out += _flat({k: v for k, v in band.items() if k != "visib"}, f"{prefix}{lo:g}-{hi:g}.")
+        return out
     if isinstance(d, (int, float, str)):
         return [(prefix[:-1], d)]
     return []

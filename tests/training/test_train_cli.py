@@ -98,6 +98,7 @@ def test_ch_from_frozen_ae_encoder(
     assert min(medians) <= aug["median_deg"] <= max(medians)
     assert 0 <= res["pairs"]["classifier"]["auc"] <= 1 and res["pairs"]["n_pairs"] == 64
     hard_bands = res["pairs"]["classifier"]["auc_hard_by_visibility"]
+    assert 0 <= res["pairs"]["classifier"]["auc_far"] <= 1
     assert sum(b["n_hard"] for b in hard_bands) <= res["pairs"]["n_hard_negatives"]
     assert "drop_occluded" in res["pairs"]["ae_cosine"]
     # wrong checkpoint types: one clear error each

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from training.evaluate import by_visibility, hard_auc_by_visibility
+from training.evaluate import by_visibility, far_negatives, hard_auc_by_visibility
 from training.lit import bootstrapped_l2, classifier_metrics
 from training.metrics import cosine_retrieval, roc_auc, symmetry_aware_angle
 
@@ -216,6 +216,15 @@ def test_hard_auc_by_visibility_bands() -> None:
     assert rows[(0.9, 1.0)]["auc"] == 1.0 and rows[(0.9, 1.0)]["n_pos"] == 2
     assert rows[(0.6, 0.9)]["auc"] == 0.5 and rows[(0.6, 0.9)]["n_hard"] == 2
     assert rows[(0.3, 0.6)]["auc"] == 0.0
+
+
+def test_far_negatives_are_the_random_ones_that_show_the_object() -> None:
+    """Negatives 45-150 deg off with the object in the crop: not positives, hard negatives,
+    flips or empty crops."""
+    y = np.array([0, 1, 1, 1, 1, 1, 1, 1])
+    angle = np.array([60.0, 30.0, 45.0, 100.0, 150.0, 175.0, 90.0, 151.0])
+    visib = np.array([1.0, 1.0, 0.5, 0.2, 1.0, 1.0, 0.0, 1.0])
+    assert far_negatives(y, angle, visib).tolist() == [0, 0, 1, 1, 1, 0, 0, 0]
 
 
 def test_embed_of_no_crops_is_an_empty_matrix() -> None:
