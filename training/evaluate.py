@@ -179,7 +179,7 @@ FAR_DEG = (45.0, 150.0)  # negatives drawn at random: past the hard ones, short 
 def far_negatives(y: np.ndarray, angle_deg: np.ndarray, visib: np.ndarray) -> np.ndarray:
     """Mask (N,) of the negatives (``y`` 1) that show the object and are ``FAR_DEG`` degrees
     off: in a test folder with the data's mix, the random ones without the flips (about 180)
-    and the hard ones (20-45). The issue's "random negatives" figure."""
+    and the hard ones (20-45): the report card's random-negatives figure."""
     angle_deg = np.asarray(angle_deg)
     far = (angle_deg >= FAR_DEG[0]) & (angle_deg <= FAR_DEG[1])
     return (np.asarray(y) > 0.5) & (np.asarray(visib) > 0) & far
@@ -234,14 +234,13 @@ def evaluate_pairs(
     if ae_path:
         ae, _ = load_autoencoder(ae_path)
         cos = np.sum(embed(ae.encoder, data["obs_rgb"]) * embed(ae.encoder, data["cand_rgb"]), 1)
-        sel = pos | hard
 
         def _mean(mask: np.ndarray) -> float:
             return float(cos[mask].mean()) if mask.any() else float("nan")
 
         out["ae_cosine"] = {
             "auc": roc_auc(-cos[~empty], y[~empty]),
-            "auc_hard": roc_auc(-cos[sel], y[sel]) if hard.any() and pos.any() else float("nan"),
+            "auc_hard": auc_against(-cos, hard),
             "auc_depth": auc_against(-cos, off),
             "mean_pos_clear": _mean(clear),
             "mean_pos_occluded": _mean(occl),
@@ -285,8 +284,8 @@ def format_report(res: dict[str, Any]) -> str:
             c = p["classifier"]
             lines.append(
                 f"  classifier ROC AUC {c['auc']:.4f} (all negatives), {c['auc_hard']:.4f} "
-                f"(hard), {c['auc_far']:.4f} (45-150 deg off), acc {c['acc']:.4f}, shares AE "
-                f"encoder: {c['shares_ae_encoder']}"
+                f"(hard), {c['auc_far']:.4f} ({FAR_DEG[0]:g}-{FAR_DEG[1]:g} deg off), "
+                f"acc {c['acc']:.4f}, shares AE encoder: {c['shares_ae_encoder']}"
             )
             lines.append(
                 f"  positives called aligned: {100 * c['aligned_rate_pos']:.1f} % overall, "
