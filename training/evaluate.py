@@ -180,9 +180,7 @@ def far_negatives(y: np.ndarray, angle_deg: np.ndarray, visib: np.ndarray) -> np
     """Mask (N,) of the negatives (``y`` 1) that show the object and are ``FAR_DEG`` degrees
     off: in a test folder with the data's mix, the random ones without the flips (about 180)
     and the hard ones (20-45): the report card's random-negatives figure."""
-    angle_deg = np.asarray(angle_deg)
-    far = (angle_deg >= FAR_DEG[0]) & (angle_deg <= FAR_DEG[1])
-    return (np.asarray(y) > 0.5) & (np.asarray(visib) > 0) & far
+    return pair_subsets(y, angle_deg, visib, FAR_DEG)[1]  # its "hard" mask, at FAR_DEG
 
 
 def evaluate_pairs(
