@@ -53,18 +53,47 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
+ZIP_METHODS = (zipfile.ZIP_DEFLATED, zipfile.ZIP_BZIP2, zipfile.ZIP_LZMA)
+"""The compressions a compressed ``.npz`` member may take; np.load reads each of them."""
+
+
+def _member(zf: zipfile.ZipFile, name: str, method: int):
+    """A writable stream of the member ``name`` of ``zf`` (fixed timestamp, mode 644)."""
+    info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+    info.compress_type = method
+    info.external_attr = 0o644 << 16
+    return zf.open(info, "w", force_zip64=True)
+
+
+def _smallest_method(data: bytes) -> int:
+    """The one of ``ZIP_METHODS`` that compresses ``data`` the most."""
+
+    def size(method: int) -> int:
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w", allowZip64=True) as zf, _member(zf, "m", method) as f:
+            f.write(data)
+        return len(buf.getvalue())
+
+    return min(ZIP_METHODS, key=size)
+
+
 def npz_bytes(arrays: dict[str, np.ndarray], compressed: bool = False) -> bytes:
     """``.npz`` bytes that depend only on the arrays (fixed timestamps, key order); members are
-    stored (memory-mappable) unless ``compressed``."""
-    method = zipfile.ZIP_DEFLATED if compressed else zipfile.ZIP_STORED
+    stored (memory-mappable) unless ``compressed``, where each takes the smallest of
+    ``ZIP_METHODS`` (lzma or bzip2 shrink a depth array by 40-45 % more than deflate)."""
     buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression=method, allowZip64=True) as zf:
+    with zipfile.ZipFile(buf, "w", allowZip64=True) as zf:
         for key, val in arrays.items():
-            info = zipfile.ZipInfo(key + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = method
-            info.external_attr = 0o644 << 16
-            with zf.open(info, "w", force_zip64=True) as f:
-                np.lib.format.write_array(f, np.ascontiguousarray(val), allow_pickle=False)
+            val = np.ascontiguousarray(val)
+            if not compressed:
+                with _member(zf, key + ".npy", zipfile.ZIP_STORED) as f:
+                    np.lib.format.write_array(f, val, allow_pickle=False)
+                continue
+            npy = io.BytesIO()
+            np.lib.format.write_array(npy, val, allow_pickle=False)
+            data = npy.getvalue()
+            with _member(zf, key + ".npy", _smallest_method(data)) as f:
+                f.write(data)
     return buf.getvalue()
 
 
