@@ -10,6 +10,7 @@ import tempfile
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
@@ -57,7 +58,7 @@ ZIP_METHODS = (zipfile.ZIP_DEFLATED, zipfile.ZIP_BZIP2, zipfile.ZIP_LZMA)
 """The compressions a compressed ``.npz`` member may take; np.load reads each of them."""
 
 
-def _member(zf: zipfile.ZipFile, name: str, method: int):
+def _member(zf: zipfile.ZipFile, name: str, method: int) -> IO[bytes]:
     """A writable stream of the member ``name`` of ``zf`` (fixed timestamp, mode 644)."""
     info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
     info.compress_type = method
@@ -80,7 +81,7 @@ def _smallest_method(data: bytes) -> int:
 def npz_bytes(arrays: dict[str, np.ndarray], compressed: bool = False) -> bytes:
     """``.npz`` bytes that depend only on the arrays (fixed timestamps, key order); members are
     stored (memory-mappable) unless ``compressed``, where each takes the smallest of
-    ``ZIP_METHODS`` (lzma or bzip2 shrink a depth array by 40-45 % more than deflate)."""
+    ``ZIP_METHODS`` (the mug bundle's depth crops: 6.5 MB in deflate, 3.8 in lzma, 3.5 in bzip2)."""
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", allowZip64=True) as zf:
         for key, val in arrays.items():
