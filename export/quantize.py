@@ -1,6 +1,6 @@
 """int8 encoders for a model bundle: onnxruntime's static quantisation in QDQ format (int8
-weights per output channel, uint8 activations), calibrated on real crops and checked against
-the float32 encoders before anything is written.
+weights per output channel in the 7-bit range, uint8 activations), calibrated on real crops and
+checked against the float32 encoders before anything is written.
 
 Calibration crops are cut from a BOP dataset with ground truth (by default the shipped demo
 sequence when it shows the bundle's object) at the true translation jittered the way a
@@ -92,7 +92,7 @@ def _quantize(src: Path, calibration: np.ndarray) -> bytes:
 
 
 def quantize_qdq(src: Path, calibration: np.ndarray) -> bytes:
-    """onnxruntime's static QDQ quantisation (bytes) of the encoder at ``src`` (int8 weights
+    """onnxruntime's static QDQ quantisation (bytes) of the encoder at ``src`` (7-bit int8 weights
     per channel, uint8 activations), calibrated on crops (N,S,S,3) uint8 in batches of 32;
     its input still goes through the exporter's Cast / Mul chain."""
     from onnxruntime.quantization import (
