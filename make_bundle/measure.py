@@ -84,7 +84,7 @@ def measure_ae_steps(
     def step() -> None:
         with torch.autocast(dev, dtype=dtype, enabled=prec.endswith("mixed")):
             recon, _ = model(x)
-            loss = torch.nn.functional.mse_loss(recon.float(), x)
+            loss = torch.nn.functional.mse_loss(recon.float(), model.recon_target(x))
         opt.zero_grad()
         loss.backward()
         opt.step()

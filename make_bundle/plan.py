@@ -9,7 +9,7 @@ from chpf.errors import ConfigError
 
 # shares of the budget left after the fixed costs (README, "chpf-make-bundle")
 SPLIT = {"data": 0.25, "ae": 0.25, "ch": 0.30}
-MARGIN = 0.10  # of the budget, kept free for what the estimates miss
+MARGIN = 0.05  # of the budget, kept free for what the estimates miss
 # nominal rates of the shipped recipe on a 2-core bf16 CPU (docs/shipped-bundle.md)
 PAIRS_PER_S = 600_000 / (18 * 60)  # pairs with the pool's rendering
 AE_STEPS_PER_S = 5000 / 600
@@ -21,7 +21,7 @@ CH_STEPS_PER_S = 11758 / 1170
 # rounded up for slower meshes
 OVERHEAD_S = {
     "ae_data": 10, "pairs_data": 10, "heldout": 15, "train_ae": 30, "codebook": 5,
-    "train_ch": 15, "export": 15, "evaluate": 30, "sequence": 10, "track": 10,
+    "train_ch": 15, "export": 15, "evaluate": 60, "sequence": 10, "track": 10,
 }  # fmt: skip
 TRAIN_MIN_S = 20  # a training stage never gets less max_time than this
 # A training stage runs to its max_time: its learning-rate schedule follows the time

@@ -550,7 +550,9 @@ class AELitModule(_ChpfModule):
         x = jitter_colors(self._images(batch, "input_rgb"), float(self.hparams.input_jitter))
         target = self._images(batch, "target_rgb")
         recon, z = _fp32(*self.model(x))
-        loss = bootstrapped_l2(recon, target, float(self.hparams.bootstrap_ratio))
+        loss = bootstrapped_l2(
+            recon, self.model.recon_target(target), float(self.hparams.bootstrap_ratio)
+        )
         hp = self.hparams
         empty = batch["visib_fract"] <= 0 if "visib_fract" in batch else None
         views = None  # clean views: the codebook's kind of crop (black around)
@@ -603,8 +605,9 @@ class AELitModule(_ChpfModule):
         x = self._images(batch, "input_rgb")
         target = self._images(batch, "target_rgb")
         recon, z = _fp32(*self.model(x))
-        loss = bootstrapped_l2(recon, target, float(self.hparams.bootstrap_ratio))
-        mse = F.mse_loss(recon, target)
+        small = self.model.recon_target(target)
+        loss = bootstrapped_l2(recon, small, float(self.hparams.bootstrap_ratio))
+        mse = F.mse_loss(recon, small)
         bs = x.shape[0]
         self.log("val/recon_loss", loss, prog_bar=True, batch_size=bs, sync_dist=True)
         self.log("val/mse", mse, batch_size=bs, sync_dist=True)

@@ -31,8 +31,11 @@ class EncoderConfig(Section):
         activation: relu, or leaky_relu (slope 0.2).
         decoder_norm: none, or batch (batch norm after each decoder layer; training only). With
             leaky_relu it keeps the autoencoder off the "mean image" plateau.
-        decoder_channels: decoder widths from the smallest resolution up (``len(channels)``
-            entries; training only, the decoder is never exported); null mirrors the encoder.
+        decoder_channels: decoder widths from the smallest resolution up (training only, the
+            decoder is never exported); null mirrors the encoder. ``len(channels)`` entries
+            reconstruct the S x S crop; m fewer stop m upsamplings early and reconstruct it at
+            ``S / 2**m`` against the area-averaged target (the full-size layers are most of a
+            step's work).
     """
 
     channels: tuple[int, ...] = setting((32, 64, 128, 256), ge=1)
@@ -49,10 +52,10 @@ class EncoderConfig(Section):
             raise Invalid("channels", "needs at least one layer")
         if self.kernel % 2 == 0:
             raise Invalid("kernel", f"must be odd, got {self.kernel}")
-        if self.decoder_channels is not None and len(self.decoder_channels) != n:
+        if self.decoder_channels is not None and not 1 <= len(self.decoder_channels) <= n:
             raise Invalid(
                 "decoder_channels",
-                f"must be {n} sizes (one per conv layer) or null, got "
+                f"must be 1 to {n} sizes (one per upsampling) or null, got "
                 f"{list(self.decoder_channels)}",
             )
         if self.size % (2**n) != 0:

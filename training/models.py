@@ -91,7 +91,9 @@ class Encoder(nn.Module):
 
 
 class Decoder(nn.Module):
-    """Mirror of ``Encoder``: embedding ``(B, E)`` -> image ``(B, 3, S, S)`` in [0, 1] (sigmoid)."""
+    """Mirror of ``Encoder``: embedding ``(B, E)`` -> image ``(B, 3, s, s)`` in [0, 1] (sigmoid),
+    ``s = out_size``: the crop side S, or less with fewer ``decoder_channels`` than encoder
+    stages (each one fewer halves it)."""
 
     def __init__(self, config: EncoderConfig | None = None) -> None:
         super().__init__()
@@ -99,7 +101,8 @@ class Decoder(nn.Module):
         self.config = cfg
         ch = list(cfg.decoder_channels or reversed(cfg.channels))
         k = cfg.kernel
-        self.in_hw = cfg.size // (2 ** len(ch))
+        self.in_hw = cfg.size // (2 ** len(cfg.channels))  # the encoder's last feature map
+        self.out_size = self.in_hw * 2 ** len(ch)
         self.in_ch = ch[0]
         self.fc = nn.Linear(cfg.embedding_dim, ch[0] * self.in_hw * self.in_hw)
         self.fc_act = make_activation(cfg)
@@ -121,7 +124,8 @@ class Decoder(nn.Module):
 
 
 class Autoencoder(nn.Module):
-    """Augmented-autoencoder: ``forward(x) -> (recon (B,3,S,S) in [0,1], z (B,E) raw)``."""
+    """Augmented-autoencoder: ``forward(x) -> (recon (B,3,s,s) in [0,1], z (B,E) raw)``, ``s``
+    the decoder's ``out_size`` (``recon_target`` gives the matching target)."""
 
     def __init__(self, config: EncoderConfig | None = None) -> None:
         super().__init__()
@@ -133,6 +137,12 @@ class Autoencoder(nn.Module):
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         z = self.encoder(x)
         return self.decoder(z), z
+
+    def recon_target(self, target: torch.Tensor) -> torch.Tensor:
+        """The reconstruction's target: ``target`` ``(B, 3, S, S)`` area-averaged to the
+        decoder's ``out_size`` (itself when that is S)."""
+        factor = target.shape[-1] // self.decoder.out_size
+        return target if factor == 1 else F.avg_pool2d(target, factor)
 
 
 class CHHead(nn.Module):

@@ -104,8 +104,8 @@ def test_bad_configs() -> None:
         from_stored(EncoderConfig, {"activation": "gelu"}, "x.ckpt")
     with pytest.raises(ConfigError, match=r"model_config\.encoder\.decoder_norm: expected one"):
         from_stored(ClassifierConfig, {"encoder": {"decoder_norm": "layer"}}, "x.ckpt")
-    with pytest.raises(ConfigError, match="decoder_channels: must be 2"):
-        tiny(decoder_channels=(8,))
+    with pytest.raises(ConfigError, match="decoder_channels: must be 1 to 2 sizes"):
+        tiny(decoder_channels=(8, 8, 8))
     with pytest.raises(ConfigError, match="refine_stages: the encoder has 2 stages"):
         ClassifierConfig(TINY, refine_stages=3)
     with pytest.raises(ConfigError, match="refine_stages: must be 0"):
@@ -138,6 +138,36 @@ def test_decoder_channels_set_the_decoder_widths_only() -> None:
     shapes = {k: v.shape for k, v in narrow.encoder.state_dict().items()}
     assert shapes == {k: v.shape for k, v in mirrored.encoder.state_dict().items()}
     assert narrow(torch.rand(2, 3, 16, 16))[0].shape == (2, 3, 16, 16)
+
+
+@pytest.mark.filterwarnings("ignore:You are trying to `self.log\\(\\)`")
+def test_a_shorter_decoder_reconstructs_the_area_averaged_crop_at_half_size(
+    pattern_images,
+) -> None:
+    """One decoder width fewer than encoder stages stops one upsampling early: the training
+    step compares a half-size reconstruction with the 2x2-averaged target (the full-size layers
+    are most of a step's work) and still learns; the encoder is unchanged."""
+    torch.manual_seed(0)
+    short = Autoencoder(tiny(decoder_channels=(6,)))
+    x = torch.rand(2, 3, 16, 16)
+    assert short.decoder.out_size == 8 and short(x)[0].shape == (2, 3, 8, 8)
+    assert torch.allclose(short.recon_target(x)[0, :, 0, 0], x[0, :, :2, :2].mean((1, 2)))
+    full = Autoencoder(TINY)
+    assert full.recon_target(x) is x
+    shapes = {k: v.shape for k, v in full.encoder.state_dict().items()}
+    assert shapes == {k: v.shape for k, v in short.encoder.state_dict().items()}
+    img, _ = pattern_images(16)
+    target = torch.from_numpy(img)
+    lit = AELitModule(tiny(decoder_channels=(6,)), lr=1e-2, warmup_steps=0)
+    opt = torch.optim.Adam(lit.parameters(), lr=1e-2)
+    losses = []
+    for _ in range(50):
+        loss = lit.training_step({"input_rgb": target, "target_rgb": target}, 0)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.5 * losses[0]
 
 
 def test_ae_loss_goes_down_on_fixed_batch(pattern_images) -> None:
