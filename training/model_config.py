@@ -46,6 +46,11 @@ class EncoderConfig(Section):
     decoder_norm: Literal["none", "batch"] = "none"
     decoder_channels: tuple[int, ...] | None = setting(None, ge=1)
 
+    @property
+    def feature_side(self) -> int:
+        """Side in pixels of the encoder's last feature map (the decoder's first): S / 2**n."""
+        return self.size // (2 ** len(self.channels))
+
     def check(self) -> None:
         n = len(self.channels)
         if n == 0:

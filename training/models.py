@@ -70,7 +70,7 @@ class Encoder(nn.Module):
             raise ConfigError(f"refine_stages: {refine_stages} > the encoder's {n} stages")
         last = range(n - refine_stages, n)
         self.refine = nn.ModuleDict({str(i): Residual(cfg.channels[i]) for i in last})
-        self.out_hw = cfg.size // (2 ** len(cfg.channels))
+        self.out_hw = cfg.feature_side
         self.fc = nn.Linear(c_in * self.out_hw * self.out_hw, cfg.embedding_dim)
 
     @property
@@ -101,7 +101,7 @@ class Decoder(nn.Module):
         self.config = cfg
         ch = list(cfg.decoder_channels or reversed(cfg.channels))
         k = cfg.kernel
-        self.in_hw = cfg.size // (2 ** len(cfg.channels))  # the encoder's last feature map
+        self.in_hw = cfg.feature_side  # the encoder's last feature map
         self.out_size = self.in_hw * 2 ** len(ch)
         self.in_ch = ch[0]
         self.fc = nn.Linear(cfg.embedding_dim, ch[0] * self.in_hw * self.in_hw)
