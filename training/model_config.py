@@ -93,6 +93,8 @@ class ClassifierConfig(Section):
             autoencoder's encoder; 0 = none. A separate candidate branch (share_twin false:
             the autoencoder's frozen encoder, freeze_candidate) has none, so that the export
             reuses the autoencoder's codebook embeddings for it.
+        refine_reduction: those blocks' inner width is the stage's channels divided by this:
+            1 = one full-width 3x3 convolution; r > 1 = a 1x1, 3x3, 1x1 bottleneck.
     """
 
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
@@ -100,6 +102,7 @@ class ClassifierConfig(Section):
     share_twin: bool = True
     shares_ae_encoder: bool = False
     refine_stages: int = setting(0, ge=0)
+    refine_reduction: int = setting(1, ge=1)
 
     def check(self) -> None:
         if self.shares_ae_encoder and not self.share_twin:

@@ -222,7 +222,7 @@ def test_shipped_configs_build_their_modules(
 def test_default_train_yaml_documents_every_model_key(kind: str, tmp_path: Path) -> None:
     """configs/train_{kind}.yaml names every model argument and every key of its typed configs,
     and chpf-train reads back exactly what it says; the classifier section holds the
-    ClassifierConfig defaults but refine_stages (its encoder is the autoencoder's at run
+    ClassifierConfig defaults but the refine blocks (its encoder is the autoencoder's at run
     time)."""
     from training.lit import AELitModule, CHLitModule
 
@@ -239,7 +239,8 @@ def test_default_train_yaml_documents_every_model_key(kind: str, tmp_path: Path)
     parsed = make_cli(kind, ["--config", str(path), *root, *init]).config["model"].as_dict()
     if kind == "ch":
         # the defaults are the networks of checkpoints older than a key; the YAML adds blocks
-        assert written["classifier"] == to_dict(ClassifierConfig(refine_stages=2))
+        blocks = ClassifierConfig(refine_stages=2, refine_reduction=4)
+        assert written["classifier"] == to_dict(blocks)
         parsed["init_from_ae"], parsed["extra_pairs"] = written["init_from_ae"], 32
     assert json.loads(json.dumps(parsed)) == written
 

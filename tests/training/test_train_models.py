@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
+from torch import nn
 
 from chpf.config_schema import to_dict
 from chpf.errors import ConfigError
@@ -60,17 +61,22 @@ def test_classifier_twin_sharing() -> None:
     assert torch.allclose(shared(x, x[[2, 0, 1]]), ref, atol=1e-5)
 
 
-def test_refine_stages_start_as_the_identity_and_train() -> None:
+@pytest.mark.parametrize("reduction", [1, 4])
+def test_refine_stages_start_as_the_identity_and_train(reduction: int) -> None:
     """Residual blocks added to an encoder compute what it computed (zero-initialised), their
-    weights get gradients, and the stored config without the key builds no blocks."""
+    last convolution gets gradients, a bottleneck's 3x3 convolution is `reduction` times
+    narrower, and the stored config without the keys builds no blocks."""
     base = Encoder(TINY)
-    refined = Encoder(TINY, refine_stages=2)
+    refined = Encoder(TINY, refine_stages=2, refine_reduction=reduction)
     missing, unexpected = refined.load_state_dict(base.state_dict(), strict=False)
     assert not unexpected and missing and all(k.startswith("refine.") for k in missing)
     x = torch.rand(4, 3, 16, 16)
     assert torch.equal(refined(x), base(x))
     refined(x).square().sum().backward()
-    assert all(float(m.conv.weight.grad.abs().sum()) > 0 for m in refined.refine.values())
+    convs = [[m for m in b.modules() if isinstance(m, nn.Conv2d)] for b in refined.refine.values()]
+    assert all(float(c[-1].weight.grad.abs().sum()) > 0 for c in convs)
+    widths = [c[len(c) // 2].out_channels for c in convs]  # the 3x3 convolution's
+    assert widths == [w // reduction for w in TINY.channels[-2:]]
     ch = CHClassifier(ClassifierConfig(TINY, refine_stages=1))
     assert set(ch.obs_encoder.refine) == {"1"} and ch.obs_encoder is ch.cand_encoder
     old = from_stored(ClassifierConfig, {"encoder": TINY_KEYS}, "old.ckpt")
