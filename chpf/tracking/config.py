@@ -20,9 +20,17 @@ from chpf.config_schema import Invalid, Section, load, read_yaml, setting
 from chpf.errors import ConfigError
 from chpf.tracking.methods import METHODS
 from chpf.tracking.search_region import SearchConfig
-from chpf.tracking.strategies import BOX_SHAPES, C_MODES
+from chpf.tracking.strategies import BOX_SHAPES, BOX_SIDES, C_MODES
 
-__all__ = ["BOX_SHAPES", "C_MODES", "L_FROM_COS", "MODALITIES", "TrackConfig", "make_config"]
+__all__ = [
+    "BOX_SHAPES",
+    "BOX_SIDES",
+    "C_MODES",
+    "L_FROM_COS",
+    "MODALITIES",
+    "TrackConfig",
+    "make_config",
+]
 
 MODALITIES = ("rgb", "rgbd")
 LFromCos = Literal["clip", "affine"]

@@ -145,6 +145,12 @@ BOX_SHAPES: tuple[str, ...] = typing.get_args(BoxShape)
 0, 1), nothing below a margin m of the ratio rho."""
 
 
+BoxSides = Literal["larger", "each"]
+BOX_SIDES: tuple[str, ...] = typing.get_args(BoxSides)
+"""Which sides of the box the box-scale counter-evidence compares with the projection's:
+"each" width with width and height with height, "larger" the larger of each."""
+
+
 SilhouetteCue = Literal["edges", "region"]
 SILHOUETTE_CUES: tuple[str, ...] = typing.get_args(SilhouetteCue)
 """What ``c_silhouette`` measures of a hypothesis's projected outline (chpf.tracking.silhouette):
@@ -158,10 +164,14 @@ class CHPFConfig(Section):
     and both need RGB-D); sums, which particles alpha's sums run over (CHPF_SUMS); l_power,
     the exponent p of L in those sums (S_L sums L^p; 1 = the paper's L); c_box, the scale (s or
     m) of the box-scale counter-evidence added to C (None = none; chpf.tracking.bundle_likelihood)
-    and c_box_shape its shape (BOX_SHAPES); c_edge, the margin of the box-edge counter-evidence
-    (Scores.C_edge; None = off), which alpha counts and the weights do not; c_near, the margin
-    of the too-near counter-evidence that joins C_edge (None = off); edge_discounts_l, whether
-    alpha's L side sums L (1 - C_edge): support that the box's edges contradict does not count;
+    and c_box_shape its shape (BOX_SHAPES); c_box_sides, which sides of the box it reads
+    (BOX_SIDES: "each" width and height, "larger" the larger side); box_whole, the probability
+    q that a side of the box is the whole object's, which weighs a hypothesis projecting larger
+    than that side by 1 - q C_box (None = off); c_edge, the margin of the box-edge
+    counter-evidence (Scores.C_edge; None = off), which alpha counts and the weights do not;
+    c_near, the margin of the too-near counter-evidence that joins C_edge (None = off);
+    edge_discounts_l, whether alpha's L side sums L (1 - C_edge): support that the box's edges
+    contradict does not count;
     c_silhouette, the power p of the silhouette's counter-evidence 1 - (a / max a)^p added to C
     (chpf.tracking.silhouette; None = off) and silhouette_cue what a measures (SILHOUETTE_CUES);
     c_weight, the exponent k of the importance weights w (1 - C)^k (0 = the paper's: C only
@@ -180,6 +190,8 @@ class CHPFConfig(Section):
     l_power: float = setting(3.0, gt=0.0)
     c_box: float | None = setting(0.1, gt=0.0)
     c_box_shape: BoxShape = "gauss"
+    c_box_sides: BoxSides = "larger"
+    box_whole: float | None = setting(None, gt=0.0, le=1.0)
     c_edge: float | None = setting(0.2, gt=0.0)
     c_near: float | None = setting(0.05, gt=0.0)
     edge_discounts_l: bool = True

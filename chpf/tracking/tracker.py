@@ -136,6 +136,9 @@ class Tracker:
             depth_no_data=lik.depth_no_data,
             c_box=cfg.chpf.c_box,
             c_box_shape=cfg.chpf.c_box_shape,
+            # CH-PF's per-side box (CH-RBPF's C reads the larger side; measured on CH-PF only)
+            c_box_sides=cfg.chpf.c_box_sides if method == "chpf" else "larger",
+            box_whole=cfg.chpf.box_whole if method == "chpf" else None,
             c_edge=cfg.chpf.c_edge,
             c_near=cfg.chpf.c_near,
             c_silhouette=cfg.chpf.c_silhouette if method == "chpf" else None,

@@ -140,6 +140,36 @@ def test_c_box_does_not_count_the_true_pose(bundle, rendered_sequence):
         assert boxed.score(frame, R, t).C[0] < plain.score(frame, R, t).C[0] + 0.05
 
 
+def test_c_box_each_side_reads_a_cut_side_as_occlusion_and_a_whole_box_both_ways(
+    bundle, rendered_sequence
+):
+    """c_box_sides "each": a side of the box longer than the projection's counts in C (too far);
+    with box_whole q each side shorter than the projection's weighs w by 1 - q C_box(1 / rho):
+    a box whole on both sides weighs a hypothesis too near down, one cut on a side by an
+    occluder weighs every depth by about 1 - q on that side, and its other side still counts a
+    hypothesis too far."""
+    seq = rendered_sequence
+    scales = np.array([0.85, 1.0, 1.2])
+    R, t = np.repeat(seq.R[:1], 3, 0), seq.t[0][None] * scales[:, None]
+    plain = BundleLikelihood(bundle, c_mode="learned")
+    each = BundleLikelihood(bundle, c_mode="learned", c_box=0.1, c_box_sides="each", box_whole=0.5)
+    x, y, w, h = each.outline_box(seq.R[0], seq.t[0], seq.K)
+    for name, box in (("whole", (x, y, w, h)), ("cut", (x + 0.4 * w, y, 0.6 * w, h))):
+        frame = Frame(seq.rgb[0], None, seq.K, box)
+        p, e = plain.score(frame, R, t), each.score(frame, R, t)
+        factor = e.w / p.w
+        np.testing.assert_allclose(e.C[:2], p.C[:2])  # no side longer than its projection
+        assert e.C[2] > 0.8 > p.C[2]  # 1.2 x farther: both sides (the cut one's height) too long
+        if name == "whole":
+            assert factor[1] == pytest.approx(1.0, abs=1e-6) and factor[0] < 0.45
+        else:
+            assert factor[1] == pytest.approx(0.5, abs=0.01) and factor[0] < factor[1]
+    with pytest.raises(ConfigError, match="c_box_sides must be one of"):
+        BundleLikelihood(bundle, c_box=0.1, c_box_sides="both")
+    with pytest.raises(ConfigError, match="box_whole must be in"):
+        BundleLikelihood(bundle, c_box=0.1, box_whole=1.5)
+
+
 def test_box_counter_evidence_gauss_counts_depth_errors_inside_the_ramps_margin():
     """gauss: 1 - exp(-ln(rho)^2 / (2 s^2)) above rho 1; ramp: nothing below 1 + m. A belief 10 %
     too far (rho 1.1) is counted by gauss (s 0.1) and not by the ramp (m 0.2); a larger

@@ -53,14 +53,16 @@ def test_chpf_paper_sums_ignore_weights_and_freshness():
     assert chpf("paper").alpha(scores(), W_FIXED, FRESH) == pytest.approx(3.0 / (3.0 + 1.8))
 
 
-def test_chpf_default_is_weighted_sums_with_l_cubed_and_the_box_scale_c():
+def test_chpf_default_is_weighted_sums_with_l_cubed_and_the_box_scale_c_of_the_larger_side():
     config = CHPFConfig()
-    assert (config.sums, config.l_power, config.c_box, config.c_box_shape) == (
-        "weighted",
-        3.0,
-        0.1,
-        "gauss",
-    )
+    assert (
+        config.sums,
+        config.l_power,
+        config.c_box,
+        config.c_box_shape,
+        config.c_box_sides,
+        config.box_whole,
+    ) == ("weighted", 3.0, 0.1, "gauss", "larger", None)
     e_c = W_FIXED @ C_FIXED
     e_l3 = W_FIXED @ L_FIXED**3
     assert CHPF().alpha(scores(), W_FIXED, FRESH) == pytest.approx(e_c / (e_c + e_l3))
