@@ -164,6 +164,11 @@ def test_c_box_each_side_reads_a_cut_side_as_occlusion_and_a_whole_box_both_ways
             assert factor[1] == pytest.approx(1.0, abs=1e-6) and factor[0] < 0.45
         else:
             assert factor[1] == pytest.approx(0.5, abs=0.01) and factor[0] < factor[1]
+    larger = BundleLikelihood(bundle, c_mode="learned", c_box=0.1, box_whole=0.5)
+    whole_box = Frame(seq.rgb[0], None, seq.K, (x, y, w, h))
+    factor = larger.score(whole_box, R, t).w / plain.score(whole_box, R, t).w
+    # the larger side alone: one factor 1 - q C_box(1 / rho), rho about 0.85 (0.63), not two
+    assert factor[1] == pytest.approx(1.0, abs=1e-6) and 0.55 < factor[0] < 0.7
     with pytest.raises(ConfigError, match="c_box_sides must be one of"):
         BundleLikelihood(bundle, c_box=0.1, c_box_sides="both")
     with pytest.raises(ConfigError, match="box_whole must be in"):
