@@ -468,20 +468,16 @@ class BundleLikelihood:
         sides = np.maximum(proj[:, 2:] - proj[:, :2], 1e-6)  # (N,2) projected width, height
         side = sides.max(axis=1)
         if self.c_box is not None:
+            # box / projected side ratios (N,k): width and height (k = 2) or the larger sides
             if self.c_box_sides == "each":
-                rho = np.asarray(sized[2:4], dtype=np.float64) / sides  # (N,2)
-                far = box_counter_evidence(rho, self.c_box, self.c_box_shape)
-                c_box = either(far[:, 0], far[:, 1])
-                if self.box_whole is not None:
-                    near = box_counter_evidence(1.0 / rho, self.c_box, self.c_box_shape)
-                    whole = np.prod(1.0 - self.box_whole * near, axis=1)
+                rho = np.asarray(sized[2:4], dtype=np.float64) / sides
             else:
-                rho = max(sized[2], sized[3]) / side
-                c_box = box_counter_evidence(rho, self.c_box, self.c_box_shape)
-                if self.box_whole is not None:
-                    whole = 1.0 - self.box_whole * box_counter_evidence(
-                        1.0 / rho, self.c_box, self.c_box_shape
-                    )
+                rho = (max(sized[2], sized[3]) / side)[:, None]
+            far = box_counter_evidence(rho, self.c_box, self.c_box_shape)
+            c_box = 1.0 - np.prod(1.0 - far, axis=1)
+            if self.box_whole is not None:
+                near = box_counter_evidence(1.0 / rho, self.c_box, self.c_box_shape)
+                whole = np.prod(1.0 - self.box_whole * near, axis=1)
         if box is not None and edges:
             edges_out = inner_margins(proj, corners(box))
             out = edges_out.max(axis=1) / side  # the box's edge farthest outside; < 0: inside
