@@ -42,7 +42,13 @@ from data_gen.config import data_pairs_config
 from training.checkpoints import load_autoencoder, load_classifier
 from training.data import open_shards, shard_crop_size
 from training.lit import classifier_metrics, load_codebook_npz, pair_subsets
-from training.metrics import cosine_retrieval, retrieval_summary, roc_auc, symmetry_aware_angle
+from training.metrics import (
+    cosine_retrieval,
+    retrieval_summary,
+    roc_auc,
+    roc_auc_interval,
+    symmetry_aware_angle,
+)
 from training.models import Preprocess
 
 
@@ -221,10 +227,13 @@ def evaluate_pairs(
         ch, info = load_classifier(ch_path)
         logit = classifier_logits(ch, data["obs_rgb"], data["cand_rgb"])
         m = classifier_metrics(logit, y, data["angle_deg"], visib, hard_deg, occluded_visib)
+        hard_lo, hard_hi = roc_auc_interval(logit[pos | hard], y[pos | hard], seed=seed)
         out["classifier"] = {
             "shares_ae_encoder": bool(info.get("shares_ae_encoder", False)),
             **{k: m[k] for k in ("acc", "auc", "auc_hard", "aligned_rate_pos", "empty_rejected")},
             "aligned_rate_occluded": m["aligned_rate_occluded"],
+            "auc_hard_lo": hard_lo,  # its 95 % bootstrap interval
+            "auc_hard_hi": hard_hi,
             "auc_far": auc_against(logit, far),
             "auc_hard_by_visibility": hard_auc_by_visibility(logit, pos, hard, visib),
             "auc_depth": auc_against(logit, off),
@@ -280,9 +289,11 @@ def format_report(res: dict[str, Any]) -> str:
         )
         if "classifier" in p:
             c = p["classifier"]
+            lo, hi = c["auc_hard_lo"], c["auc_hard_hi"]
             lines.append(
                 f"  classifier ROC AUC {c['auc']:.4f} (all negatives), {c['auc_hard']:.4f} "
-                f"(hard), {c['auc_far']:.4f} ({FAR_DEG[0]:g}-{FAR_DEG[1]:g} deg off), "
+                f"(hard; 95 % interval {lo:.3f}-{hi:.3f}), {c['auc_far']:.4f} "
+                f"({FAR_DEG[0]:g}-{FAR_DEG[1]:g} deg off), "
                 f"acc {c['acc']:.4f}, shares AE encoder: {c['shares_ae_encoder']}"
             )
             lines.append(

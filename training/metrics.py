@@ -33,6 +33,28 @@ def roc_auc(scores: np.ndarray, labels: np.ndarray) -> float:
     return float(u / (n_pos * n_neg))
 
 
+def roc_auc_interval(
+    scores: np.ndarray, labels: np.ndarray, resamples: int = 1000, seed: int = 0
+) -> tuple[float, float]:
+    """95 % bootstrap interval (lo, hi) of ``roc_auc(scores, labels)``: the 2.5 and 97.5
+    percentiles over ``resamples`` draws of the positives and of the negatives, each with
+    replacement and at its own count (stratified), seeded so that a report is reproducible.
+    (nan, nan) if a class is empty."""
+    s = np.asarray(scores, dtype=np.float64).ravel()
+    y = np.asarray(labels).ravel().astype(bool)
+    pos, neg = np.flatnonzero(y), np.flatnonzero(~y)
+    if pos.size == 0 or neg.size == 0:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    truth = np.r_[np.ones(pos.size, bool), np.zeros(neg.size, bool)]
+    boots = [
+        roc_auc(s[np.r_[rng.choice(pos, pos.size), rng.choice(neg, neg.size)]], truth)
+        for _ in range(resamples)
+    ]
+    lo, hi = np.percentile(boots, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
 def _angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle (rad) between unit vectors along the last axis."""
     return np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0))

@@ -33,7 +33,8 @@ def test_every_stage_writes_a_bundle_and_report(made: Path) -> None:
         assert f"| {stage} |" in rep
     assert "chpf" in rep and "poserbpf" in rep
     # the report card: the figures, the visibility bands among them
-    for key in ("pairs.classifier.auc_hard", "pairs.classifier.auc_far",
+    for key in ("pairs.classifier.auc_hard", "pairs.classifier.auc_hard_lo",
+                "pairs.classifier.auc_far",
                 "pairs.classifier.auc_hard_by_visibility.0.3-0.6.auc",
                 "ae.augmented_by_visibility.0.9-1.median_deg"):  # fmt: skip
         assert f"| {key} |" in rep, key

@@ -99,6 +99,8 @@ def test_ch_from_frozen_ae_encoder(
     assert 0 <= res["pairs"]["classifier"]["auc"] <= 1 and res["pairs"]["n_pairs"] == 64
     hard_bands = res["pairs"]["classifier"]["auc_hard_by_visibility"]
     assert 0 <= res["pairs"]["classifier"]["auc_far"] <= 1
+    c = res["pairs"]["classifier"]
+    assert c["auc_hard_lo"] <= c["auc_hard"] <= c["auc_hard_hi"]
     assert sum(b["n_hard"] for b in hard_bands) <= res["pairs"]["n_hard_negatives"]
     assert "drop_occluded" in res["pairs"]["ae_cosine"]
     # wrong checkpoint types: one clear error each
