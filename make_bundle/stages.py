@@ -191,11 +191,13 @@ def evaluate(c: Ctx) -> list[str]:
 
     base = ["--ae", str(ckpt(c, "run_ae")), "--codebook", str(c.d("codebook.npz"))]
     base += ["--cache-dir", str(c.cache)]
-    _check(main([*base, "--data", str(c.d("ae_test")), "--json", str(c.d("eval_ae.json"))]), "eval")
+    every = ["--max-samples", "0"]  # the held-out sets whole; the training family's 4,000
+    ae = ["--data", str(c.d("ae_test")), "--json", str(c.d("eval_ae.json"))]
+    _check(main([*base, *every, *ae]), "eval")
     ch = ["--ch", str(ckpt(c, "run_ch"))]
     for fam in ("pairs", "pairs_test"):  # training family and held-out family
-        js = str(c.d(f"eval_{fam}.json"))
-        _check(main([*base, *ch, "--pairs", str(c.d(fam)), "--json", js]), "eval")
+        js = ["--pairs", str(c.d(fam)), "--json", str(c.d(f"eval_{fam}.json"))]
+        _check(main([*base, *ch, *js, *(every if fam == "pairs_test" else [])]), "eval")
     return ["eval_ae.json", "eval_pairs.json", "eval_pairs_test.json"]
 
 
