@@ -10,7 +10,8 @@ the file and the key (chpf.config_schema).
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -98,6 +99,15 @@ class CropJitter(Section):
     xy_sigma: float = setting(0.04, ge=0.0, le=1.0)
     z_sigma: float = setting(0.05, ge=0.0, le=0.5)
     ae_target: Literal["follow", "centred"] = "follow"
+
+
+def shifts_ae_targets(config: Mapping[str, Any]) -> bool:
+    """Whether ae samples made with the generator ``config`` (a manifest's ``config``) show the
+    object off the crop centre in their targets too: crop jitter with ``ae_target: follow``.
+    An autoencoder trained so encodes the shift (a few pixels move its nearest centred view by
+    tens of degrees), so such crops cannot measure its orientation retrieval."""
+    jit = {**asdict(CropJitter()), **(config.get("crop_jitter") or {})}
+    return jit["ae_target"] == "follow" and (jit["xy_sigma"] > 0 or jit["z_sigma"] > 0)
 
 
 @dataclass

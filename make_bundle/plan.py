@@ -35,6 +35,9 @@ SHORT_BUDGET_S = 1800  # below it: smaller held-out sets, codebooks and test seq
 # pairs, so that the hard-negative AUC's 95 % interval spans about 0.01 (with 2,000 pairs from
 # 1,000 renders, the size before 2026-12-07, 260 of them: the mug's 0.975 read 0.964-0.983)
 HELDOUT = (8000, 4000)
+# the autoencoder's validation crops: from its training pool, cut without crop jitter (the
+# training crops' jitter, which their targets follow, made its retrieval error read the shift)
+AE_VAL_N = 2000
 
 
 def parse_budget(text: str) -> float:
@@ -65,6 +68,7 @@ class Plan:
     ch_time_s: int
     seq_frames: int
     est_s: dict[str, float] = field(default_factory=dict)  # estimated seconds per stage
+    ae_val_n: int = 0  # crops without crop jitter to validate the autoencoder on (0: its split)
     ae_config: str = "configs/train_ae.yaml"
     ch_config: str = "configs/train_ch.yaml"
     extra_gen: list[str] = field(default_factory=list)
@@ -73,7 +77,8 @@ class Plan:
         """Stage -> what it makes, in words."""
         t = self.test_n
         return {
-            "ae_data": f"{self.ae_n} samples / {self.ae_pool} renders",
+            "ae_data": f"{self.ae_n} samples / {self.ae_pool} renders"
+            + (f", {self.ae_val_n} to validate" if self.ae_val_n else ""),
             "pairs_data": f"{self.pairs_n} pairs / {self.pairs_pool} renders",
             "heldout": f"{t} ae + {t} pairs / {self.test_pool} renders",
             "train_ae": f"{self.ae_time_s} s (<= {self.ae_steps} steps)",
@@ -107,7 +112,7 @@ NOMINAL_RENDERS_PER_S = 250.0
 def _tiny(budget_s: float) -> Plan:
     return Plan(
         preset="tiny", budget_s=budget_s, crop_size=32, ae_n=64, ae_pool=48, pairs_n=64,
-        pairs_pool=48, test_n=32, test_pool=24, codebook_k=64, export_k=64, ae_steps=4,
+        pairs_pool=48, test_n=32, test_pool=24, ae_val_n=32, codebook_k=64, export_k=64, ae_steps=4,
         ae_time_s=60, ch_steps=4, ch_time_s=60, seq_frames=4,
         est_s={"ae_data": 2, "pairs_data": 1, "heldout": 1, "train_ae": 12, "codebook": 1,
                "train_ch": 9, "export": 3, "evaluate": 4, "sequence": 1, "track": 1},
@@ -163,7 +168,7 @@ def make_plan(
     pairs_n = int(pairs_per_s * share["data"] * 5 / 6)
     ae_n = min(60_000, int(pairs_per_s * share["data"] / 6 * 1.5))
     ae_time, ch_time = int(share["ae"]), int(share["ch"])
-    est["ae_data"] += share["data"] / 6
+    est["ae_data"] += share["data"] / 6 + AE_VAL_N / pairs_per_s
     est["pairs_data"] += share["data"] * 5 / 6
     est["train_ae"] += ae_time
     est["train_ch"] += ch_time
@@ -171,7 +176,7 @@ def make_plan(
         preset="budget", budget_s=budget_s, crop_size=64, ae_n=ae_n,
         ae_pool=max(1000, min(10_000, ae_n // 6)), pairs_n=pairs_n,
         pairs_pool=max(2000, min(120_000, pairs_n // 5)), test_n=test_n, test_pool=test_pool,
-        codebook_k=codebook_k, export_k=export_k,
+        ae_val_n=AE_VAL_N, codebook_k=codebook_k, export_k=export_k,
         ae_steps=max(100, int(STEP_CAP_FACTOR * ae_rate * ae_time)), ae_time_s=ae_time,
         ch_steps=max(100, int(STEP_CAP_FACTOR * ch_rate * ch_time)), ch_time_s=ch_time,
         seq_frames=30 if short else 60, est_s={k: round(v, 1) for k, v in est.items()},

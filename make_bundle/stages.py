@@ -89,9 +89,19 @@ def _gen(c: Ctx, kind: str, out: str, n: int, pool: int, seed: int, extra: list[
     _check(main(argv), f"chpf-gen-data {kind}")
 
 
+# ae crops cut at the true translation and all showing the object (held-out and validation)
+CLEAN_AE = [
+    "--set", "crop_jitter.xy_sigma=0", "--set", "crop_jitter.z_sigma=0",
+    "--set", "empty_crops.ae_share=0",
+]  # fmt: skip
+
+
 def ae_data(c: Ctx) -> list[str]:
     _gen(c, "ae", "ae", c.plan.ae_n, c.plan.ae_pool, c.seed, [])
-    return ["ae"]
+    if not c.plan.ae_val_n:  # a plan from before the validation set
+        return ["ae"]
+    _gen(c, "ae", "ae_val", c.plan.ae_val_n, c.plan.ae_pool, c.seed + 2, CLEAN_AE)
+    return ["ae", "ae_val"]
 
 
 def pairs_data(c: Ctx) -> list[str]:
@@ -102,8 +112,7 @@ def pairs_data(c: Ctx) -> list[str]:
 def heldout(c: Ctx) -> list[str]:
     t = ["--set", "obs_pool.seed=1"]
     n, p, s = c.plan.test_n, c.plan.test_pool, c.seed + 1
-    nojit = ["--set", "crop_jitter.xy_sigma=0", "--set", "crop_jitter.z_sigma=0"]
-    _gen(c, "ae", "ae_test", n, p, s, [*t, *nojit, "--set", "empty_crops.ae_share=0"])
+    _gen(c, "ae", "ae_test", n, p, s, [*t, *CLEAN_AE])
     _gen(c, "pairs", "pairs_test", n, p, s, t)
     return ["ae_test", "pairs_test"]
 
@@ -148,6 +157,8 @@ def ckpt(c: Ctx, run: str) -> Path:
 def train_ae(c: Ctx) -> list[str]:
     p = c.plan
     extra = ["--model.encoder.size", "32"] if p.preset == "tiny" else []
+    if p.ae_val_n:
+        extra += ["--data.val_dir", str(c.d("ae_val"))]
     _train(c, "ae", p.ae_config, "ae", "run_ae", p.ae_steps, p.ae_time_s, extra)
     return ["run_ae"]
 
@@ -251,7 +262,7 @@ DATA_STAGES = ("ae_data", "pairs_data", "heldout")
 
 # outputs a stage removes before it starts again after an interruption
 OUTPUTS = {
-    "ae_data": ["ae"], "pairs_data": ["pairs"], "heldout": ["ae_test", "pairs_test"],
+    "ae_data": ["ae", "ae_val"], "pairs_data": ["pairs"], "heldout": ["ae_test", "pairs_test"],
     "train_ae": ["run_ae"], "codebook": ["codebook.npz"], "train_ch": ["run_ch"],
     "evaluate": [], "sequence": ["seq"], "track": ["track"], "export": [],
 }  # fmt: skip

@@ -24,7 +24,7 @@ import torch.nn.functional as F
 from chpf.config_schema import to_dict
 from chpf.errors import ChpfError, ConfigError, DatasetError
 from data_gen.compose import depth_off
-from data_gen.config import data_pairs_config
+from data_gen.config import data_pairs_config, shifts_ae_targets
 from training.batch_augment import BatchAugment, augment_batch
 from training.checkpoints import (
     CHECKPOINT_FORMAT_VERSION,
@@ -388,6 +388,22 @@ def manifest_symmetries(object_info: Mapping[str, Any] | None) -> tuple[list, li
     return disc, cont
 
 
+def warn_if_shifted_val_crops(dm: Any) -> None:
+    """Warn when the validation crops of an autoencoder's retrieval error are cut with crop
+    jitter that their targets follow: the error then measures the shift (about 110 deg on the
+    duck's default data, where crops without jitter read 13 deg), and best-*.ckpt follows it."""
+    folder = dm.val_dir if dm.val_dir is not None else dm.data_dir
+    manifest = dm.val_reader.manifest if dm.val_dir is not None else dm.manifest
+    if shifts_ae_targets(manifest.get("config") or {}):
+        warnings.warn(
+            f"{folder}: the validation crops are cut with crop jitter that their targets follow, "
+            "so val/retrieval_median_deg (which picks best-*.ckpt) measures the shift, not the "
+            "orientation; give --data.val_dir an ae set made with --set crop_jitter.xy_sigma=0 "
+            "--set crop_jitter.z_sigma=0 (chpf-make-bundle does)",
+            stacklevel=2,
+        )
+
+
 def val_codebook_cache(
     root: str | os.PathLike, manifest: Mapping[str, Any], k: int
 ) -> tuple[Path, str]:
@@ -524,6 +540,8 @@ class AELitModule(_ChpfModule):
         dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
         if k > 0 and dm is not None and stage in ("fit", "validate"):
             self._val_cb = self._rendered_codebook(dm, k)
+        if self._val_cb is not None and dm is not None and hasattr(dm, "manifest"):
+            warn_if_shifted_val_crops(dm)
 
     def _rendered_codebook(self, dm: Any, k: int) -> dict[str, np.ndarray]:
         """The cached uniform validation codebook of ``val_codebook_size`` (see the class

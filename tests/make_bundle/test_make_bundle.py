@@ -42,6 +42,18 @@ def test_every_stage_writes_a_bundle_and_report(made: Path) -> None:
     assert list(made.glob("track_*.png"))
 
 
+def test_the_autoencoder_validates_on_crops_without_jitter(made: Path) -> None:
+    """Its retrieval error (which picks best-*.ckpt) read the training crops' shift."""
+    from data_gen.config import shifts_ae_targets
+    from data_gen.shards import read_manifest
+
+    work = made.parent / "box.work"
+    cfg = yaml.safe_load(next((work / "run_ae").rglob("config.yaml")).read_text())
+    assert Path(cfg["data"]["val_dir"]) == work / "ae_val"
+    assert shifts_ae_targets(read_manifest(work / "ae")["config"])
+    assert not shifts_ae_targets(read_manifest(work / "ae_val")["config"])
+
+
 def test_rerun_does_nothing(made: Path, capsys: pytest.CaptureFixture) -> None:
     before = {p: os.stat(p).st_mtime_ns for p in made.rglob("*")}
     assert main([*ARGS, "--out", str(made)]) == 0
