@@ -156,6 +156,7 @@ def make_plan(
     export_k = 4096 if budget_s < 3600 else 10_000
     est = dict(OVERHEAD_S)
     est["heldout"] += (2 * test_n + 2 * test_pool) / pairs_per_s
+    est["ae_data"] += AE_VAL_N / pairs_per_s
     if export_k != codebook_k:  # the export renders its own codebook views
         est["export"] += export_k / renders_per_s
     free = budget_s * (1 - MARGIN) - spent_s - sum(est.values())
@@ -168,7 +169,7 @@ def make_plan(
     pairs_n = int(pairs_per_s * share["data"] * 5 / 6)
     ae_n = min(60_000, int(pairs_per_s * share["data"] / 6 * 1.5))
     ae_time, ch_time = int(share["ae"]), int(share["ch"])
-    est["ae_data"] += share["data"] / 6 + AE_VAL_N / pairs_per_s
+    est["ae_data"] += share["data"] / 6
     est["pairs_data"] += share["data"] * 5 / 6
     est["train_ae"] += ae_time
     est["train_ch"] += ch_time
