@@ -1,4 +1,4 @@
-"""Occluders and appearance changes drawn onto training crops, batch by batch.
+"""Occluders, reframing and appearance changes drawn onto training crops, batch by batch.
 
 The renderer's occluders (built-in objects, 2D blobs) and lighting are a closed family: a
 classifier trained on them alone learned that family's look, and called far fewer occluded
@@ -7,7 +7,9 @@ This module adds, at training time, what the renderer never draws: occluders of 
 shapes (rotated rectangles, ellipses, random polygons, thick strokes) filled with a flat
 colour, noise, a colour gradient or a piece of another crop of the batch, then a colour cast,
 brightness, contrast and gamma change, blur and sensor noise. The labels stay: occlusion and
-lighting are not evidence against a pose.
+lighting are not evidence against a pose. Reframing zooms and shifts a crop by a few per cent
+(a crop cut at a slightly wrong translation, as a particle's is): the labels stay there too,
+since the pairs' labels ignore the crop jitter that the data was cut with.
 
 Crops are float ``(B, 3, S, S)`` in [0, 1]; the occluder masks are drawn with OpenCV on the CPU.
 """
@@ -42,6 +44,9 @@ class BatchAugment(Section):
         blur_share: share of crops blurred with a Gaussian of sigma in ``blur_sigma`` (pixels).
         blur_sigma: [lo, hi] blur sigma in pixels.
         noise_std: max std of additive Gaussian pixel noise (drawn in [0, noise_std]).
+        zoom_sigma: std of the log of a per-crop zoom factor (0.05: about 5 % larger or
+            smaller; 0 = off).
+        shift_sigma: std of a per-crop shift along x and y, as a fraction of the crop's side.
     """
 
     occluder_share: float = setting(0.0, ge=0.0, le=1.0)
@@ -54,6 +59,8 @@ class BatchAugment(Section):
     blur_share: float = setting(0.0, ge=0.0, le=1.0)
     blur_sigma: tuple[float, float] = setting((0.5, 1.5), gt=0.0)
     noise_std: float = setting(0.0, ge=0.0)
+    zoom_sigma: float = setting(0.0, ge=0.0, le=0.5)
+    shift_sigma: float = setting(0.0, ge=0.0, le=0.5)
 
     def check(self) -> None:
         for key in ("occluder_area", "brightness", "contrast", "gamma", "blur_sigma"):
@@ -171,8 +178,23 @@ def change_appearance(x: torch.Tensor, cfg: BatchAugment, rng: np.random.Generat
     return y.clamp(0.0, 1.0)
 
 
+def reframe(x: torch.Tensor, cfg: BatchAugment, rng: np.random.Generator) -> torch.Tensor:
+    """The crops x (B, 3, S, S) each zoomed by exp(N(0, zoom_sigma)) about its centre and
+    shifted by N(0, shift_sigma) crop sides along x and y (the edge pixels fill what comes in)."""
+    if cfg.zoom_sigma <= 0 and cfg.shift_sigma <= 0:
+        return x
+    b = x.shape[0]
+    inv_zoom = np.exp(-rng.normal(0.0, cfg.zoom_sigma, b))
+    shift = rng.normal(0.0, cfg.shift_sigma, (b, 2))
+    theta = np.zeros((b, 2, 3))
+    theta[:, 0, 0] = theta[:, 1, 1] = inv_zoom
+    theta[:, :, 2] = -2.0 * shift * inv_zoom[:, None]  # output (u, v) -> input, in [-1, 1] units
+    grid = F.affine_grid(torch.from_numpy(theta).to(x), list(x.shape), align_corners=False)
+    return F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+
 def augment_batch(x: torch.Tensor, cfg: BatchAugment, rng: np.random.Generator) -> torch.Tensor:
-    """Occluders, then appearance changes, on the crops x (B, 3, S, S) in [0, 1]."""
+    """Reframing, occluders, then appearance changes, on the crops x (B, 3, S, S) in [0, 1]."""
     if not cfg.active:
         return x
-    return change_appearance(add_occluders(x, cfg, rng), cfg, rng)
+    return change_appearance(add_occluders(reframe(x, cfg, rng), cfg, rng), cfg, rng)

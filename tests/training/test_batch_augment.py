@@ -14,6 +14,7 @@ from training.batch_augment import (
     augment_batch,
     change_appearance,
     occluder_mask,
+    reframe,
 )
 
 
@@ -59,6 +60,28 @@ def test_colour_cast_darkens_channels_and_blur_smooths() -> None:
 
     assert roughness(y) < 0.5 * roughness(x)
     assert y.mean() == pytest.approx(float(x.mean()), abs=0.01)  # blurring keeps the mean
+
+
+def test_reframing_zooms_and_shifts_each_crop_as_drawn() -> None:
+    """A bright square in the middle of each crop comes out larger or smaller by the drawn zoom
+    and moved by the drawn shift (crop sides, x then y)."""
+    b, s = 24, 64
+    x = torch.zeros(b, 3, s, s)
+    x[:, :, 24:40, 24:40] = 1.0
+    cfg = BatchAugment(zoom_sigma=0.2, shift_sigma=0.05)
+    y = reframe(x, cfg, np.random.default_rng(3))
+    replay = np.random.default_rng(3)
+    zoom = np.exp(replay.normal(0.0, 0.2, b))
+    shift = replay.normal(0.0, 0.05, (b, 2))
+    mass = y[:, 0].sum(dim=(1, 2)).numpy()
+    np.testing.assert_allclose(mass / 256.0, zoom**2, rtol=0.03)
+    coords = torch.arange(s, dtype=torch.float32) + 0.5
+    cx = (y[:, 0].sum(1) * coords).sum(1).numpy() / mass
+    cy = (y[:, 0].sum(2) * coords).sum(1).numpy() / mass
+    np.testing.assert_allclose(cx - 32.0, shift[:, 0] * s, atol=0.1)
+    np.testing.assert_allclose(cy - 32.0, shift[:, 1] * s, atol=0.1)
+    assert BatchAugment(zoom_sigma=0.05).active
+    assert reframe(x, BatchAugment(), np.random.default_rng(0)) is x
 
 
 def test_ranges_are_checked() -> None:
