@@ -6,9 +6,15 @@ import json
 from pathlib import Path
 from typing import Any
 
+from training.metrics import band_label
+
 
 def _j(p: Path) -> Any:
     return json.loads(p.read_text()) if p.is_file() else None
+
+
+# the keys of training.evaluate's band rows: visible fraction, the crop's scale error
+BAND_KEYS = ("visib", "scale_off")
 
 
 def _flat(d: Any, prefix: str = "") -> list[tuple[str, Any]]:
@@ -17,11 +23,12 @@ def _flat(d: Any, prefix: str = "") -> list[tuple[str, Any]]:
         for k, v in d.items():
             out += _flat(v, f"{prefix}{k}.")
         return out
-    if isinstance(d, list) and d and all(isinstance(x, dict) and "visib" in x for x in d):
-        out = []  # visibility bands (training.evaluate): one row per band and figure
+    key = next((k for k in BAND_KEYS if d and isinstance(d, list) and k in d[0]), None)
+    if key and all(isinstance(x, dict) and key in x for x in d):
+        out = []  # bands (training.evaluate): one row per band and figure
         for band in d:
-            lo, hi = band["visib"]
-            out += _flat({k: v for k, v in band.items() if k != "visib"}, f"{prefix}{lo:g}-{hi:g}.")
+            label = band_label(*band[key])
+            out += _flat({k: v for k, v in band.items() if k != key}, f"{prefix}{label}.")
         return out
     if isinstance(d, (int, float, str)):
         return [(prefix[:-1], d)]

@@ -43,6 +43,7 @@ from training.checkpoints import load_autoencoder, load_classifier
 from training.data import open_shards, shard_crop_size
 from training.lit import classifier_metrics, load_codebook_npz, pair_subsets
 from training.metrics import (
+    band_label,
     cosine_retrieval,
     retrieval_summary,
     roc_auc,
@@ -163,20 +164,46 @@ def by_visibility(err_deg: np.ndarray, visib: np.ndarray) -> list[dict[str, Any]
     return rows
 
 
-def hard_auc_by_visibility(
-    logit: np.ndarray, pos: np.ndarray, hard: np.ndarray, visib: np.ndarray
+def hard_auc_in_bands(
+    logit: np.ndarray, pos: np.ndarray, hard: np.ndarray, bands: list[np.ndarray]
 ) -> list[dict[str, Any]]:
     """ROC AUC of the misalignment ``logit`` (N,) on the positives against the hard negatives
-    (boolean masks, N) of each visibility band of ``VISIBILITY_BANDS`` but the lowest (a pair
-    counts in the band of its own ``visib``, ``visibility_band``)."""
+    (boolean masks, N) of each band (a boolean mask, N), with their counts; NaN where a band
+    lacks either."""
     rows = []
-    for lo, hi in VISIBILITY_BANDS[:-1]:
-        band = visibility_band(visib, lo, hi)
+    for band in bands:
         p, h = pos & band, hard & band
         sel = p | h
         auc = roc_auc(logit[sel], h[sel].astype(np.int64)) if p.any() and h.any() else float("nan")
-        rows.append({"visib": [lo, hi], "n_pos": int(p.sum()), "n_hard": int(h.sum()), "auc": auc})
+        rows.append({"n_pos": int(p.sum()), "n_hard": int(h.sum()), "auc": auc})
     return rows
+
+
+def hard_auc_by_visibility(
+    logit: np.ndarray, pos: np.ndarray, hard: np.ndarray, visib: np.ndarray
+) -> list[dict[str, Any]]:
+    """``hard_auc_in_bands`` over the bands of ``VISIBILITY_BANDS`` but the lowest (a pair
+    counts in the band of its own ``visib``, ``visibility_band``)."""
+    edges = VISIBILITY_BANDS[:-1]
+    rows = hard_auc_in_bands(logit, pos, hard, [visibility_band(visib, *e) for e in edges])
+    return [{"visib": list(e), **r} for e, r in zip(edges, rows, strict=True)]
+
+
+# bands [lo, hi) of a crop's scale error |ln(z_crop / z)|, the last one open (hi None); the
+# crop jitter's z_sigma is 0.05
+SCALE_OFF_BANDS = ((0.0, 0.02), (0.02, 0.05), (0.05, 0.08), (0.08, None))
+
+
+def hard_auc_by_scale_off(
+    logit: np.ndarray, pos: np.ndarray, hard: np.ndarray, depth_ratio: np.ndarray
+) -> list[dict[str, Any]]:
+    """``hard_auc_in_bands`` over the bands of ``SCALE_OFF_BANDS`` of the crops' scale error
+    |ln depth_ratio| (``depth_ratio`` (N,): the depth each crop was cut at over the true one):
+    how far the crop jitter's scale holds the classifier back."""
+    off = np.abs(np.log(np.maximum(depth_ratio.astype(np.float64), 1e-6)))
+    masks = [(off >= lo) & (off < (np.inf if hi is None else hi)) for lo, hi in SCALE_OFF_BANDS]
+    rows = hard_auc_in_bands(logit, pos, hard, masks)
+    return [{"scale_off": [lo, hi], **r} for (lo, hi), r in zip(SCALE_OFF_BANDS, rows, strict=True)]
 
 
 FAR_DEG = (45.0, 150.0)  # negatives drawn at random: past the hard ones, short of the flips
@@ -236,6 +263,7 @@ def evaluate_pairs(
             "auc_hard_hi": hard_hi,
             "auc_far": auc_against(logit, far),
             "auc_hard_by_visibility": hard_auc_by_visibility(logit, pos, hard, visib),
+            "auc_hard_by_scale_off": hard_auc_by_scale_off(logit, pos, hard, data["depth_ratio"]),
             "auc_depth": auc_against(logit, off),
         }
     if ae_path:
@@ -307,6 +335,14 @@ def format_report(res: dict[str, Any]) -> str:
                 for b in c["auc_hard_by_visibility"]
             ]
             lines.append("  hard-negative AUC by visibility: " + ", ".join(bands))
+            scales = [
+                f"{band_label(*b['scale_off'])} {b['auc']:.4f} "
+                f"({b['n_pos']} pos / {b['n_hard']} hard)"
+                for b in c["auc_hard_by_scale_off"]
+            ]
+            lines.append(
+                "  hard-negative AUC by the crop's scale error |ln z'/z|: " + ", ".join(scales)
+            )
             if p["n_depth_negatives"]:
                 lines.append(
                     f"  ROC AUC against the {p['n_depth_negatives']} scale negatives (right "

@@ -7,6 +7,11 @@ from collections.abc import Sequence
 import numpy as np
 
 
+def band_label(lo: float, hi: float | None) -> str:
+    """``lo-hi`` of a band of figures, ``lo+`` of an open one (``hi`` None)."""
+    return f"{lo:g}+" if hi is None else f"{lo:g}-{hi:g}"
+
+
 def roc_auc(scores: np.ndarray, labels: np.ndarray) -> float:
     """Area under the ROC curve of ``scores`` for binary ``labels`` (1 = positive class).
 

@@ -32,10 +32,11 @@ def test_every_stage_writes_a_bundle_and_report(made: Path) -> None:
                   "export", "evaluate", "sequence", "track"):  # fmt: skip
         assert f"| {stage} |" in rep
     assert "chpf" in rep and "poserbpf" in rep
-    # the report card: the figures, the visibility bands among them
+    # the report card: the figures, the visibility and scale-error bands among them
     for key in ("pairs.classifier.auc_hard", "pairs.classifier.auc_hard_lo",
                 "pairs.classifier.auc_far",
                 "pairs.classifier.auc_hard_by_visibility.0.3-0.6.auc",
+                "pairs.classifier.auc_hard_by_scale_off.0.08+.n_pos",
                 "ae.augmented_by_visibility.0.9-1.median_deg"):  # fmt: skip
         assert f"| {key} |" in rep, key
     assert (made / "contact_sheet.png").is_file()

@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from training.evaluate import by_visibility, far_negatives, hard_auc_by_visibility
+from training.evaluate import (
+    by_visibility,
+    far_negatives,
+    hard_auc_by_scale_off,
+    hard_auc_by_visibility,
+)
 from training.lit import bootstrapped_l2, classifier_metrics
 from training.metrics import cosine_retrieval, roc_auc, roc_auc_interval, symmetry_aware_angle
 
@@ -236,6 +241,21 @@ def test_hard_auc_by_visibility_bands() -> None:
     assert rows[(0.9, 1.0)]["auc"] == 1.0 and rows[(0.9, 1.0)]["n_pos"] == 2
     assert rows[(0.6, 0.9)]["auc"] == 0.5 and rows[(0.6, 0.9)]["n_hard"] == 2
     assert rows[(0.3, 0.6)]["auc"] == 0.0
+
+
+def test_hard_auc_by_scale_off_bands() -> None:
+    """A pair counts in the band of its crop's |ln depth_ratio|, nearer and farther alike; the
+    last band is open."""
+    ratio = np.array([1.0, 1.01, 1.03, 1 / 1.03, 1.07, 1 / 1.07, 1.3, 2.0])
+    pos = np.array([1, 0, 1, 0, 0, 1, 1, 0], bool)
+    hard = ~pos
+    logit = np.array([0.1, 0.5, 0.9, 0.2, 0.9, 0.2, 0.5, 0.4])
+    rows = {tuple(r["scale_off"]): r for r in hard_auc_by_scale_off(logit, pos, hard, ratio)}
+    assert list(rows) == [(0.0, 0.02), (0.02, 0.05), (0.05, 0.08), (0.08, None)]
+    assert rows[(0.0, 0.02)]["auc"] == 1.0 and rows[(0.0, 0.02)]["n_pos"] == 1
+    assert rows[(0.02, 0.05)]["auc"] == 0.0 and rows[(0.02, 0.05)]["n_hard"] == 1
+    assert rows[(0.05, 0.08)]["auc"] == 1.0
+    assert rows[(0.08, None)]["auc"] == 0.0 and rows[(0.08, None)]["n_hard"] == 1
 
 
 def test_far_negatives_are_the_random_ones_that_show_the_object() -> None:
