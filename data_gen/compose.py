@@ -58,14 +58,19 @@ def aligned_depth_bound(pairs_cfg: dict) -> float:
     return 0.5 * float(pairs_cfg["scale_negative_range"][0])
 
 
+def scale_error(depth_ratio: np.ndarray) -> np.ndarray:
+    """A crop's scale error |ln(z_crop / z)| (N,) float64 from its ``depth_ratio`` (N,)."""
+    return np.abs(np.log(np.maximum(np.asarray(depth_ratio, dtype=np.float64), 1e-6)))
+
+
 def depth_off(depth_ratio: np.ndarray, pairs_cfg: dict) -> np.ndarray:
     """Which observed crops (N,) bool were cut at a wrong depth (scale negatives: every
     hypothesis misaligned), from their ``depth_ratio`` (N,) and the data's ``pairs`` config;
     none when it made no scale negatives."""
-    r = np.asarray(depth_ratio, dtype=np.float64)
+    off = scale_error(depth_ratio)
     if float(pairs_cfg.get("scale_negative_share", 0.0)) <= 0:
-        return np.zeros(r.shape, bool)
-    return np.abs(np.log(np.maximum(r, 1e-6))) >= aligned_depth_bound(pairs_cfg)
+        return np.zeros(off.shape, bool)
+    return off >= aligned_depth_bound(pairs_cfg)
 
 
 @dataclass

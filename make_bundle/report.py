@@ -23,7 +23,8 @@ def _flat(d: Any, prefix: str = "") -> list[tuple[str, Any]]:
         for k, v in d.items():
             out += _flat(v, f"{prefix}{k}.")
         return out
-    key = next((k for k in BAND_KEYS if d and isinstance(d, list) and k in d[0]), None)
+    first = d[0] if isinstance(d, list) and d and isinstance(d[0], dict) else {}
+    key = next((k for k in BAND_KEYS if k in first), None)
     if key and all(isinstance(x, dict) and key in x for x in d):
         out = []  # bands (training.evaluate): one row per band and figure
         for band in d:

@@ -37,7 +37,7 @@ from chpf.atomic import atomic_write_text
 from chpf.console import run_main
 from chpf.errors import ConfigError
 from chpf.objects import MESH_UNITS
-from data_gen.compose import depth_off
+from data_gen.compose import depth_off, scale_error
 from data_gen.config import data_pairs_config
 from training.checkpoints import load_autoencoder, load_classifier
 from training.data import open_shards, shard_crop_size
@@ -200,7 +200,7 @@ def hard_auc_by_scale_off(
     """``hard_auc_in_bands`` over the bands of ``SCALE_OFF_BANDS`` of the crops' scale error
     |ln depth_ratio| (``depth_ratio`` (N,): the depth each crop was cut at over the true one):
     how far the crop jitter's scale holds the classifier back."""
-    off = np.abs(np.log(np.maximum(depth_ratio.astype(np.float64), 1e-6)))
+    off = scale_error(depth_ratio)
     masks = [(off >= lo) & (off < (np.inf if hi is None else hi)) for lo, hi in SCALE_OFF_BANDS]
     rows = hard_auc_in_bands(logit, pos, hard, masks)
     return [{"scale_off": [lo, hi], **r} for (lo, hi), r in zip(SCALE_OFF_BANDS, rows, strict=True)]
